@@ -1,0 +1,28 @@
+//! Vision for the wall-line quadrotor, `no_std` and without allocation.
+//!
+//! - [`image`]: borrowed RGB8 and grey views with a stride.
+//! - [`camera`]: pinhole intrinsics with Brown-Conrady distortion.
+//! - [`target`]: the painted line's rectangle and its corners `A, B, C, D` (paper Fig. 1).
+//! - [`detect`]: red-line segmentation, sub-pixel edges and robust line fits, giving a [`LineObservation`].
+//! - [`pose`]: vanishing points and least-squares pose (paper eq. 1-14), image-only or IMU-aided, refined by
+//!   minimising the reprojection error, with the planar ambiguity resolved by gravity.
+//!
+//! Time never enters this crate: callers attach timestamps to what they pass on.
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+
+pub mod camera;
+pub mod detect;
+pub mod image;
+pub mod observation;
+pub mod pose;
+pub mod target;
+
+pub use camera::{CameraModel, Distortion};
+pub use detect::{DetectionDiagnostics, DetectorParams, DetectorWorkspace, NoTargetReason, detect_line};
+pub use image::{Gray8View, Rgb8View};
+pub use observation::{EdgeStats, LineObservation};
+pub use pose::{AttitudeSource, CameraMount, PoseError, PoseParams, PoseSolution, TranslationMethod, solve_pose};
+pub use target::{Corner, Edge, LineTarget};
