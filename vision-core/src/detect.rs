@@ -780,7 +780,8 @@ fn measure_band(
     }
 
     // Ends: image-left is the line's finish end, image-right its start end.
-    let need = half + 3 + params.border_margin_px as i32;
+    // Room for the profile window and the two outside-level pixels beyond it.
+    let need = half + 2 + params.border_margin_px as i32;
     let mut ends: [Option<EdgeStats>; 2] = [None, None]; // [start (right), finish (left)]
     for (slot, left) in [(1usize, true), (0usize, false)] {
         let u_edge = if left { x_min } else { x_max };
@@ -789,7 +790,9 @@ fn measure_band(
         }
         let v_top = line_v_at(camera, top.line(), u_edge as f32);
         let v_bot = line_v_at(camera, bottom.line(), u_edge as f32);
-        let cm = half as f32 + 2.0;
+        // Rows within 2 px of the long edges are left out (their vertical coverage varies along the row);
+        // nearer the corner the inside level, taken on the same row, still normalises the profile.
+        let cm = 2.0f32;
         let (v0, v1) = (libm::ceilf(v_top + cm) as i32, libm::floorf(v_bot - cm) as i32);
         let mut n = 0usize;
         for v in v0.max(0)..=v1.min(h - 1) {
@@ -850,4 +853,141 @@ fn measure_band(
         return Err(NoTargetReason::NoLineShapedRegion);
     }
     Ok(LineObservation { top, bottom, start_end: ends[0], finish_end: ends[1] })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::target::Corner;
+
+    const W: usize = 640;
+    const H: usize = 480;
+    const WALL: [f32; 3] = [180.0, 175.0, 165.0];
+    const RED: [f32; 3] = [200.0, 35.0, 30.0];
+
+    /// Exact box-filter coverage of pixel (i, j) (covering [i-0.5, i+0.5] x [j-0.5, j+0.5]) by a shape given
+    /// as an inside test, by 64x64 supersampling (axis-aligned shapes are computed exactly instead).
+    fn render(mut coverage: impl FnMut(usize, usize) -> f32) -> Vec<u8> {
+        let mut img = vec![0u8; W * H * 3];
+        for j in 0..H {
+            for i in 0..W {
+                let c = coverage(i, j);
+                for k in 0..3 {
+                    img[(j * W + i) * 3 + k] = (c * RED[k] + (1.0 - c) * WALL[k]).round() as u8;
+                }
+            }
+        }
+        img
+    }
+
+    fn overlap(a0: f32, a1: f32, p: usize) -> f32 {
+        let (lo, hi) = (p as f32 - 0.5, p as f32 + 0.5);
+        (a1.min(hi) - a0.max(lo)).clamp(0.0, 1.0)
+    }
+
+    fn rect(x0: f32, x1: f32, y0: f32, y1: f32) -> Vec<u8> {
+        render(|i, j| overlap(x0, x1, i) * overlap(y0, y1, j))
+    }
+
+    fn detect(img: &[u8]) -> (Result<LineObservation, NoTargetReason>, DetectionDiagnostics) {
+        let view = Rgb8View::packed(img, W, H).unwrap();
+        let mut ws = Box::new(DetectorWorkspace::new());
+        let r = detect_line(&view, &CameraModel::PAPER_FORWARD, &DetectorParams::default(), &mut ws);
+        (r, ws.diagnostics())
+    }
+
+    #[test]
+    fn exact_band_gives_exact_edges_and_corners() {
+        let (x0, x1, y0, y1) = (100.3f32, 540.8f32, 200.25f32, 222.6f32);
+        let (obs, diag) = detect(&rect(x0, x1, y0, y1));
+        let obs = obs.unwrap();
+        let cam = CameraModel::PAPER_FORWARD;
+        assert_eq!(obs.real_corners(), 4, "{diag:?}");
+        let c = obs.corners_px(&cam);
+        // Left of the image is the line's finish end (C top, D bottom); right is the start end (A, B).
+        let expect = [(Corner::A, x1, y1), (Corner::B, x1, y0), (Corner::C, x0, y0), (Corner::D, x0, y1)];
+        for (k, ex, ey) in expect {
+            let p = c[k as usize].unwrap();
+            assert!((p.x - ex).abs() < 0.02 && (p.y - ey).abs() < 0.02, "{k:?}: {p:?} vs ({ex}, {ey})");
+        }
+        assert!(diag.long_edge_points[0] > 400 && diag.long_edge_rms_px[0] < 0.01, "{diag:?}");
+        assert!((diag.fill_ratio - 1.0).abs() < 0.1);
+    }
+
+    #[test]
+    fn slanted_band_with_noise() {
+        // A band rotated by 4 degrees, 24 px high, with +-3 grey levels of uniform noise.
+        let (cx, cy, len, hgt, ang) = (300.0f32, 250.0f32, 420.0f32, 24.0f32, 4f32.to_radians());
+        let (s, c) = (ang.sin(), ang.cos());
+        let inside = |x: f32, y: f32| {
+            let (dx, dy) = (x - cx, y - cy);
+            let (u, v) = (c * dx + s * dy, -s * dx + c * dy);
+            u.abs() <= len / 2.0 && v.abs() <= hgt / 2.0
+        };
+        let mut seed = 1u32;
+        let mut img = render(|i, j| {
+            let mut n = 0;
+            for a in 0..8 {
+                for b in 0..8 {
+                    let (x, y) = (i as f32 - 0.5 + (a as f32 + 0.5) / 8.0, j as f32 - 0.5 + (b as f32 + 0.5) / 8.0);
+                    n += inside(x, y) as u32;
+                }
+            }
+            n as f32 / 64.0
+        });
+        for p in img.iter_mut() {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            let noise = (seed >> 29) as i32 - 3;
+            *p = (*p as i32 + noise).clamp(0, 255) as u8;
+        }
+        let (obs, diag) = detect(&img);
+        let obs = obs.unwrap();
+        let cam = CameraModel::PAPER_FORWARD;
+        // Top edge direction matches the rotation.
+        let d = obs.top.direction();
+        let slope = (d.y / d.x).atan();
+        assert!((slope - ang).abs() < 0.002, "{slope} vs {ang}");
+        // Corner B (image right, top) of the rotated band.
+        let b = obs.corner_px(&cam, Corner::B).unwrap();
+        let (bx, by) = (cx + c * len / 2.0 - s * (-hgt / 2.0), cy + s * len / 2.0 + c * (-hgt / 2.0));
+        assert!((b.x - bx).abs() < 0.3 && (b.y - by).abs() < 0.15, "{b:?} vs ({bx}, {by}) {diag:?}");
+    }
+
+    #[test]
+    fn one_end_outside_the_image() {
+        let (obs, _) = detect(&rect(-40.0, 400.5, 200.25, 222.6));
+        let obs = obs.unwrap();
+        assert!(obs.finish_end.is_none(), "the left end is outside");
+        assert!(obs.start_end.is_some());
+        assert_eq!(obs.real_corners(), 2);
+    }
+
+    #[test]
+    fn rejects_what_is_not_the_line() {
+        let blank = render(|_, _| 0.0);
+        assert_eq!(detect(&blank).0.unwrap_err(), NoTargetReason::NoRedPixels);
+        let disc = render(|i, j| {
+            let (dx, dy) = (i as f32 - 320.0, j as f32 - 240.0);
+            ((dx * dx + dy * dy).sqrt() < 60.0) as u8 as f32
+        });
+        assert_eq!(detect(&disc).0.unwrap_err(), NoTargetReason::NoLineShapedRegion);
+        let square = rect(200.0, 300.0, 200.0, 300.0);
+        assert_eq!(detect(&square).0.unwrap_err(), NoTargetReason::NoLineShapedRegion);
+        // A thin ellipse is long and thin but its edges are not straight.
+        let ellipse = render(|i, j| {
+            let (dx, dy) = ((i as f32 - 320.0) / 200.0, (j as f32 - 240.0) / 14.0);
+            ((dx * dx + dy * dy) < 1.0) as u8 as f32
+        });
+        assert!(detect(&ellipse).0.is_err());
+        // An outline of a long rectangle does not fill its band.
+        let outline = render(|i, j| {
+            let outer = overlap(100.0, 540.0, i) * overlap(200.0, 240.0, j);
+            let inner = overlap(104.0, 536.0, i) * overlap(204.0, 236.0, j);
+            outer - inner
+        });
+        assert!(detect(&outline).0.is_err());
+        // A band running out of the top of the image.
+        let clipped = rect(100.0, 540.0, -5.0, 15.0);
+        assert!(detect(&clipped).0.is_err());
+    }
 }

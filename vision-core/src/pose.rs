@@ -97,6 +97,9 @@ pub struct PoseParams {
     pub distance_range_m: [f32; 2],
     /// Levenberg-Marquardt iteration limit.
     pub max_iterations: u8,
+    /// A pose whose `y` or `z` standard deviation exceeds this is rejected as under-determined (m): with
+    /// one end in view and no attitude, pitch and altitude are nearly interchangeable.
+    pub max_std_m: f32,
 }
 
 impl Default for PoseParams {
@@ -110,6 +113,7 @@ impl Default for PoseParams {
             max_rms_px: 1.0,
             distance_range_m: [0.2, 20.0],
             max_iterations: 30,
+            max_std_m: 0.1,
         }
     }
 }
@@ -131,7 +135,8 @@ pub enum PoseError {
     ReprojectionTooLarge,
     /// The least-squares system is singular.
     Singular,
-    /// Image only with no end of the line in view: rotation and position cannot both be solved.
+    /// The image alone does not determine the pose: no end of the line in view, or one end and a covariance
+    /// above [`PoseParams::max_std_m`] (pitch and altitude nearly interchangeable).
     Underdetermined,
 }
 
@@ -145,7 +150,9 @@ impl PoseError {
             PoseError::Implausible => "the solution puts the line behind the camera or out of range",
             PoseError::ReprojectionTooLarge => "reprojection error too large: the red shape is not the known line",
             PoseError::Singular => "the least-squares system is singular",
-            PoseError::Underdetermined => "no end of the line in view: the image alone cannot give a pose (give an attitude)",
+            PoseError::Underdetermined => {
+                "the image alone cannot fix pitch and altitude here (no end, or one end, of the line in view): give an attitude"
+            }
         }
     }
 
@@ -703,7 +710,8 @@ pub fn solve_pose(
     if params.check_ambiguity && params.refine {
         if let Some(rm) = mirror_pose(&r, t) {
             let (rm, tm, _) = image_only.refine(rm, t, params.max_iterations);
-            if r.angle_to(&rm) > geometry::deg(1.0) && in_front(&image_only, &rm, tm) {
+            let primary_ok = plausible(&image_only, &r, t);
+            if r.angle_to(&rm) > geometry::deg(1.0) && plausible(&image_only, &rm, tm) {
                 let rms_p = libm::sqrtf(image_only.image_mse(&r, t));
                 let rms_m = libm::sqrtf(image_only.image_mse(&rm, tm));
                 // Gravity reference: the IMU's up direction, else "near level".
@@ -715,8 +723,8 @@ pub fn solve_pose(
                 // Both fit the image (likelihood-ratio test on the sigma-normalised costs, 3 sigma): gravity
                 // decides. With an IMU prior the primary solution already used gravity.
                 let both_fit = (image_only.cost(&rm, tm) - image_only.cost(&r, t)).abs() < 9.0;
-                let take_mirror =
-                    prior.is_none() && if both_fit { tilt(&rm) < tilt(&r) } else { rms_m < rms_p };
+                let take_mirror = !primary_ok
+                    || (prior.is_none() && if both_fit { tilt(&rm) < tilt(&r) } else { rms_m < rms_p });
                 let (rms_keep, rms_other) = if take_mirror { (rms_m, rms_p) } else { (rms_p, rms_m) };
                 let (r_other, t_other) = if take_mirror { (r, t) } else { (rm, tm) };
                 if take_mirror {
@@ -732,7 +740,7 @@ pub fn solve_pose(
             }
         }
     }
-    if !r.is_finite() || !t.is_finite() || !in_front(&image_only, &r, t) {
+    if !r.is_finite() || !t.is_finite() || !plausible(&image_only, &r, t) {
         return Err(PoseError::Implausible);
     }
     let dist = t.norm();
@@ -752,6 +760,9 @@ pub fn solve_pose(
     if fix_x {
         position_std_m.x = f32::INFINITY;
     }
+    if params.refine && !(position_std_m.y <= params.max_std_m && position_std_m.z <= params.max_std_m) {
+        return Err(PoseError::Underdetermined);
+    }
     let x_observed = !fix_x && (!params.refine || position_std_m.x <= params.max_x_std_m);
     let c = -r.tmul_vec(t);
     let camera_position_m = c + origin;
@@ -770,6 +781,12 @@ pub fn solve_pose(
         iterations,
         alternative,
     })
+}
+
+/// True when the target is in front of the camera and the camera on the painted side of the wall (the wall's
+/// normal is world +y; from behind, a mirrored pose can fit the image as well).
+fn plausible(p: &Problem, r_cw: &Mat3, t: Vec3) -> bool {
+    in_front(p, r_cw, t) && (-r_cw.tmul_vec(t)).y > 0.0
 }
 
 /// True when every model edge end point is in front of the camera.
@@ -929,7 +946,7 @@ mod tests {
         let pos = Vec3::new(0.15, 10.0, 0.8);
         let level = Attitude::new(0.0, geometry::deg(-10.0), 0.0);
         let obs = exact(&t, pos, level);
-        let params = PoseParams { max_rms_px: 5.0, ..PoseParams::default() };
+        let params = PoseParams { max_rms_px: 5.0, max_std_m: f32::INFINITY, ..PoseParams::default() };
         let mount = CameraMount::FORWARD_AT_CENTRE;
         let sol = solve_pose(&obs, &CAM, &t, &mount, AttitudeSource::ImageOnly, &params).unwrap();
         let alt = sol.alternative.expect("a second minimum");

@@ -1,0 +1,52 @@
+//! Benchmarks of the forward-camera vision: the whole pipeline (detection and pose) on one 640x480 frame,
+//! its parts, and the renderer.
+use criterion::{Criterion, criterion_group, criterion_main};
+use geometry::frames::Attitude;
+use geometry::{Vec3, deg};
+use sim_host::Scenario;
+use sim_host::render::ForwardRenderer;
+use std::hint::black_box;
+use vision_core::{AttitudeSource, DetectorParams, DetectorWorkspace, PoseParams, detect_line, solve_pose};
+
+fn bench(c: &mut Criterion) {
+    let scenario = Scenario::paper();
+    let renderer = ForwardRenderer::new(&scenario).expect("renderer");
+    let mount = scenario.forward_camera_mount();
+    let att = Attitude::new(deg(1.5), deg(-2.0), deg(4.0));
+    let r_wc = att.world_from_body().mul_mat(&mount.body_from_camera);
+    let mut settings = renderer.default_settings();
+    settings.seed = 1;
+    // Both ends in view (the most work: four edges) at the paper's distance and altitude.
+    let img = renderer.render(&r_wc, Vec3::new(1.15, 1.45, 0.8), &settings);
+    let cam = scenario.forward_camera_model();
+    let target = scenario.line_target();
+    let params = DetectorParams::default();
+    let mut ws = Box::new(DetectorWorkspace::new());
+    let obs = detect_line(&img.view(), &cam, &params, &mut ws).expect("line");
+    assert_eq!(obs.real_corners(), 4);
+    let imu = AttitudeSource::Imu { roll: att.roll, pitch: att.pitch, sigma_rad: deg(0.5) };
+    let pp = PoseParams::default();
+
+    let mut g = c.benchmark_group("forward_vision_640x480");
+    g.bench_function("pipeline_imu_aided", |b| {
+        b.iter(|| {
+            let obs = detect_line(black_box(&img.view()), &cam, &params, &mut ws).expect("line");
+            solve_pose(&obs, &cam, &target, &mount, imu, &pp).expect("pose")
+        })
+    });
+    g.bench_function("pipeline_image_only", |b| {
+        b.iter(|| {
+            let obs = detect_line(black_box(&img.view()), &cam, &params, &mut ws).expect("line");
+            solve_pose(&obs, &cam, &target, &mount, AttitudeSource::ImageOnly, &pp).expect("pose")
+        })
+    });
+    g.bench_function("detect_only", |b| b.iter(|| detect_line(black_box(&img.view()), &cam, &params, &mut ws)));
+    g.bench_function("pose_only_imu_aided", |b| b.iter(|| solve_pose(black_box(&obs), &cam, &target, &mount, imu, &pp)));
+    g.finish();
+    c.bench_function("render_forward_640x480", |b| {
+        b.iter(|| renderer.render(black_box(&r_wc), Vec3::new(1.15, 1.45, 0.8), &settings))
+    });
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,163 @@
+//! Owned images and PNG input/output.
+use std::fs::File;
+use std::io::{BufReader, BufWriter};
+use std::path::Path;
+
+/// An owned, tightly packed 8-bit RGB image.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RgbImage {
+    /// Width (px).
+    pub width: usize,
+    /// Height (px).
+    pub height: usize,
+    /// `3 * width * height` bytes, row-major, `R, G, B`.
+    pub data: Vec<u8>,
+}
+
+/// An owned, tightly packed 8-bit grey image.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct GrayImage {
+    /// Width (px).
+    pub width: usize,
+    /// Height (px).
+    pub height: usize,
+    /// `width * height` bytes, row-major.
+    pub data: Vec<u8>,
+}
+
+impl RgbImage {
+    /// A black image.
+    pub fn new(width: usize, height: usize) -> Self {
+        Self { width, height, data: vec![0; 3 * width * height] }
+    }
+
+    /// A borrowed view for vision-core.
+    pub fn view(&self) -> vision_core::Rgb8View<'_> {
+        // The buffer is exactly the right size by construction.
+        match vision_core::Rgb8View::packed(&self.data, self.width, self.height) {
+            Ok(v) => v,
+            Err(e) => unreachable_image(e),
+        }
+    }
+
+    /// Sets a pixel (ignored outside the image).
+    pub fn put(&mut self, x: i64, y: i64, rgb: [u8; 3]) {
+        if x >= 0 && y >= 0 && (x as usize) < self.width && (y as usize) < self.height {
+            let i = 3 * (y as usize * self.width + x as usize);
+            self.data[i..i + 3].copy_from_slice(&rgb);
+        }
+    }
+}
+
+impl GrayImage {
+    /// A black image.
+    pub fn new(width: usize, height: usize) -> Self {
+        Self { width, height, data: vec![0; width * height] }
+    }
+
+    /// A borrowed view for vision-core.
+    pub fn view(&self) -> vision_core::Gray8View<'_> {
+        match vision_core::Gray8View::packed(&self.data, self.width, self.height) {
+            Ok(v) => v,
+            Err(e) => unreachable_image(e),
+        }
+    }
+}
+
+fn unreachable_image(e: vision_core::image::ImageError) -> ! {
+    // Owned images always hold exactly width * height pixels; a failure here is a programming error.
+    panic!("owned image does not match its dimensions: {e:?}")
+}
+
+/// Why an image file could not be read.
+#[derive(Debug)]
+pub enum ImageIoError {
+    /// The file could not be opened or read.
+    Io(std::io::Error),
+    /// The file is not a PNG, or is corrupt.
+    NotPng(String),
+    /// The PNG has a pixel format the tool does not accept.
+    Unsupported(String),
+}
+
+impl std::fmt::Display for ImageIoError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ImageIoError::Io(e) => write!(f, "cannot read the file: {e}"),
+            ImageIoError::NotPng(e) => write!(f, "not a readable PNG file: {e}"),
+            ImageIoError::Unsupported(e) => write!(f, "unsupported PNG: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for ImageIoError {}
+
+fn decode(path: &Path) -> Result<(png::OutputInfo, Vec<u8>), ImageIoError> {
+    let file = File::open(path).map_err(ImageIoError::Io)?;
+    let mut decoder = png::Decoder::new(BufReader::new(file));
+    decoder.set_transformations(png::Transformations::normalize_to_color8());
+    let mut reader = decoder.read_info().map_err(|e| ImageIoError::NotPng(e.to_string()))?;
+    let size = reader.output_buffer_size().ok_or_else(|| ImageIoError::Unsupported("image too large".into()))?;
+    let mut buf = vec![0; size];
+    let info = reader.next_frame(&mut buf).map_err(|e| ImageIoError::NotPng(e.to_string()))?;
+    buf.truncate(info.buffer_size());
+    Ok((info, buf))
+}
+
+/// Reads a PNG as RGB (8-bit; 16-bit is reduced, palettes expanded, alpha dropped). Grey images are
+/// rejected: the red line needs colour.
+pub fn read_png_rgb(path: &Path) -> Result<RgbImage, ImageIoError> {
+    let (info, buf) = decode(path)?;
+    let (w, h) = (info.width as usize, info.height as usize);
+    let data = match info.color_type {
+        png::ColorType::Rgb => buf,
+        png::ColorType::Rgba => buf.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
+        other => {
+            return Err(ImageIoError::Unsupported(format!("{other:?} image: a colour (RGB or RGBA) image is needed")));
+        }
+    };
+    if data.len() != 3 * w * h {
+        return Err(ImageIoError::NotPng("pixel data shorter than the header says".into()));
+    }
+    Ok(RgbImage { width: w, height: h, data })
+}
+
+/// Reads a PNG as 8-bit grey (colour images are converted with Rec. 601 luma weights).
+pub fn read_png_gray(path: &Path) -> Result<GrayImage, ImageIoError> {
+    let (info, buf) = decode(path)?;
+    let (w, h) = (info.width as usize, info.height as usize);
+    let luma = |r: u8, g: u8, b: u8| ((299 * r as u32 + 587 * g as u32 + 114 * b as u32 + 500) / 1000) as u8;
+    let data = match info.color_type {
+        png::ColorType::Grayscale => buf,
+        png::ColorType::GrayscaleAlpha => buf.chunks_exact(2).map(|p| p[0]).collect(),
+        png::ColorType::Rgb => buf.chunks_exact(3).map(|p| luma(p[0], p[1], p[2])).collect(),
+        png::ColorType::Rgba => buf.chunks_exact(4).map(|p| luma(p[0], p[1], p[2])).collect(),
+        other => return Err(ImageIoError::Unsupported(format!("{other:?}"))),
+    };
+    if data.len() != w * h {
+        return Err(ImageIoError::NotPng("pixel data shorter than the header says".into()));
+    }
+    Ok(GrayImage { width: w, height: h, data })
+}
+
+fn write(path: &Path, w: usize, h: usize, color: png::ColorType, data: &[u8]) -> anyhow::Result<()> {
+    let file = File::create(path).map_err(|e| anyhow::anyhow!("cannot create {}: {e}", path.display()))?;
+    let mut enc = png::Encoder::new(BufWriter::new(file), w as u32, h as u32);
+    enc.set_color(color);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.set_compression(png::Compression::Fast);
+    let mut writer = enc.write_header()?;
+    writer.write_image_data(data)?;
+    writer.finish()?;
+    Ok(())
+}
+
+/// Writes an RGB PNG.
+pub fn write_png_rgb(path: &Path, img: &RgbImage) -> anyhow::Result<()> {
+    write(path, img.width, img.height, png::ColorType::Rgb, &img.data)
+}
+
+/// Writes a grey PNG.
+pub fn write_png_gray(path: &Path, img: &GrayImage) -> anyhow::Result<()> {
+    write(path, img.width, img.height, png::ColorType::Grayscale, &img.data)
+}

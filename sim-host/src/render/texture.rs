@@ -1,0 +1,120 @@
+//! Procedural textures (multi-octave value noise plus speckle), baked into a table of brightness multipliers.
+use crate::rng::splitmix64;
+
+/// A baked texture over a rectangle of a plane: `multiplier(a, b)` around 1.0.
+#[derive(Clone, Debug)]
+pub struct Texture {
+    width: usize,
+    height: usize,
+    origin: [f64; 2],
+    inv_texel: f64,
+    origin_f32: [f32; 2],
+    inv_texel_f32: f32,
+    data: Vec<f32>,
+}
+
+fn lattice(ix: i64, iy: i64, seed: u64) -> f32 {
+    let mut s = seed ^ (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    let h = splitmix64(&mut s);
+    ((h >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+}
+
+fn value_noise(x: f64, y: f64, cell: f64, seed: u64) -> f32 {
+    let (fx, fy) = (x / cell, y / cell);
+    let (ix, iy) = (fx.floor() as i64, fy.floor() as i64);
+    let (tx, ty) = ((fx - ix as f64) as f32, (fy - iy as f64) as f32);
+    let s = |t: f32| t * t * (3.0 - 2.0 * t);
+    let (sx, sy) = (s(tx), s(ty));
+    let a = lattice(ix, iy, seed) + sx * (lattice(ix + 1, iy, seed) - lattice(ix, iy, seed));
+    let b = lattice(ix, iy + 1, seed) + sx * (lattice(ix + 1, iy + 1, seed) - lattice(ix, iy + 1, seed));
+    a + sy * (b - a)
+}
+
+/// What the texture looks like.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TextureKind {
+    /// Smooth plaster: large soft blotches and a fine grain.
+    Plaster,
+    /// Concrete: blotches, grain and dark and light speckles (good features for optical flow).
+    Concrete,
+}
+
+impl Texture {
+    /// Bakes a texture covering `[origin, origin + size_m]` with square texels of `texel_m`.
+    /// `contrast` is the relative amplitude (0 gives a uniform texture).
+    pub fn bake(kind: TextureKind, contrast: f64, seed: u64, origin: [f64; 2], size_m: [f64; 2], texel_m: f64) -> Self {
+        let width = (size_m[0] / texel_m).ceil().max(1.0) as usize;
+        let height = (size_m[1] / texel_m).ceil().max(1.0) as usize;
+        let mut data = vec![1.0f32; width * height];
+        if contrast > 0.0 {
+            let octaves: &[(f64, f32)] = match kind {
+                TextureKind::Plaster => &[(0.5, 0.35), (0.12, 0.3), (0.03, 0.2), (0.008, 0.15)],
+                TextureKind::Concrete => &[(0.4, 0.25), (0.08, 0.25), (0.02, 0.25), (0.006, 0.25)],
+            };
+            for j in 0..height {
+                for i in 0..width {
+                    let (x, y) = (origin[0] + (i as f64 + 0.5) * texel_m, origin[1] + (j as f64 + 0.5) * texel_m);
+                    let mut v = 0.0f32;
+                    for (k, &(cell, amp)) in octaves.iter().enumerate() {
+                        v += amp * value_noise(x, y, cell, seed.wrapping_add(k as u64 * 7919));
+                    }
+                    if kind == TextureKind::Concrete {
+                        // Speckles: sparse texels much darker or lighter.
+                        let mut s = seed ^ ((i as u64) << 32 | j as u64).wrapping_mul(0xD6E8_FEB8_6659_FD93);
+                        let h = splitmix64(&mut s);
+                        if h % 97 == 0 {
+                            v -= 1.2;
+                        } else if h % 89 == 0 {
+                            v += 0.9;
+                        }
+                    }
+                    data[j * width + i] = (1.0 + contrast as f32 * v).max(0.05);
+                }
+            }
+        }
+        Self {
+            width,
+            height,
+            origin,
+            inv_texel: 1.0 / texel_m,
+            origin_f32: origin.map(|v| v as f32),
+            inv_texel_f32: (1.0 / texel_m) as f32,
+            data,
+        }
+    }
+
+    /// Width and height in texels.
+    pub fn dims(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// The texels, row-major.
+    pub fn texels(&self) -> &[f32] {
+        &self.data
+    }
+
+    /// Brightness multiplier at plane coordinates `(a, b)` (nearest texel; clamped at the border).
+    #[inline(always)]
+    pub fn sample(&self, a: f32, b: f32) -> f32 {
+        // Saturating float-to-int casts, then clamps: no branches, no f64.
+        let i = (((a - self.origin_f32[0]) * self.inv_texel_f32) as i32).clamp(0, self.width as i32 - 1) as usize;
+        let j = (((b - self.origin_f32[1]) * self.inv_texel_f32) as i32).clamp(0, self.height as i32 - 1) as usize;
+        self.data[j * self.width + i]
+    }
+
+    /// Bilinear sample (for fine renders such as the downward camera).
+    pub fn sample_bilinear(&self, a: f64, b: f64) -> f32 {
+        let fx = (a - self.origin[0]) * self.inv_texel - 0.5;
+        let fy = (b - self.origin[1]) * self.inv_texel - 0.5;
+        let (ix, iy) = (fx.floor(), fy.floor());
+        let (tx, ty) = ((fx - ix) as f32, (fy - iy) as f32);
+        let at = |i: f64, j: f64| {
+            let i = (i as i64).clamp(0, self.width as i64 - 1) as usize;
+            let j = (j as i64).clamp(0, self.height as i64 - 1) as usize;
+            self.data[j * self.width + i]
+        };
+        let a0 = at(ix, iy) + tx * (at(ix + 1.0, iy) - at(ix, iy));
+        let a1 = at(ix, iy + 1.0) + tx * (at(ix + 1.0, iy + 1.0) - at(ix, iy + 1.0));
+        a0 + ty * (a1 - a0)
+    }
+}

@@ -1,0 +1,323 @@
+//! Scenario files (TOML): vehicle, cameras, scene, gains, noise, latency, trajectory.
+//!
+//! Unknown fields are rejected and every value is checked when the file loads; errors name the field.
+use anyhow::{Context, Result, bail};
+use geometry::frames::BODY_FROM_FORWARD_CAMERA;
+use geometry::{Mat3, Vec3};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use vision_core::{CameraModel, CameraMount, Distortion, LineTarget};
+
+/// The built-in scenarios: `(name, TOML text)`.
+pub const BUILT_IN: &[(&str, &str)] = &[("paper", include_str!("../scenarios/paper.toml"))];
+
+/// The scene: the wall with the painted line, the floor, the light.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SceneConfig {
+    /// World x of the line's start end (m).
+    pub line_x_start_m: f64,
+    /// World x of the line's finish end (m).
+    pub line_x_end_m: f64,
+    /// Height of the line's lower edge (m).
+    pub line_z_bottom_m: f64,
+    /// Height of the line's upper edge (m).
+    pub line_z_top_m: f64,
+    /// Albedo of the red paint (linear RGB, 0..1).
+    pub line_albedo_rgb: [f64; 3],
+    /// Albedo of the wall.
+    pub wall_albedo_rgb: [f64; 3],
+    /// Albedo of the floor.
+    pub floor_albedo_rgb: [f64; 3],
+    /// Relative amplitude of the wall texture.
+    pub wall_texture_contrast: f64,
+    /// Relative amplitude of the floor texture.
+    pub floor_texture_contrast: f64,
+    /// Seed of the procedural textures.
+    pub texture_seed: u64,
+    /// Illumination gain.
+    pub light_gain: f64,
+    /// Relative change of the illumination per metre along the wall's x and z.
+    pub light_gradient_per_m: [f64; 2],
+    /// Whether the line is painted (scenes without it test the detector's rejections).
+    #[serde(default = "yes")]
+    pub line_visible: bool,
+    /// Other shapes painted on the wall.
+    #[serde(default)]
+    pub shapes: Vec<WallShape>,
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// A shape painted on the wall, in wall coordinates `(x, z)` (metres).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum WallShape {
+    /// A convex polygon.
+    Polygon {
+        /// Vertices `(x, z)` in order.
+        points_m: Vec<[f64; 2]>,
+        /// Albedo (linear RGB, 0..1).
+        albedo_rgb: [f64; 3],
+    },
+    /// A disc.
+    Disc {
+        /// Centre `(x, z)`.
+        center_m: [f64; 2],
+        /// Radius.
+        radius_m: f64,
+        /// Albedo (linear RGB, 0..1).
+        albedo_rgb: [f64; 3],
+    },
+}
+
+impl WallShape {
+    /// The shape as a convex polygon in wall coordinates (discs as 32-gons) and its albedo.
+    pub fn polygon(&self) -> (Vec<[f64; 2]>, [f64; 3]) {
+        match self {
+            WallShape::Polygon { points_m, albedo_rgb } => (points_m.clone(), *albedo_rgb),
+            WallShape::Disc { center_m, radius_m, albedo_rgb } => {
+                let pts = (0..32)
+                    .map(|i| {
+                        let a = i as f64 * std::f64::consts::TAU / 32.0;
+                        [center_m[0] + radius_m * a.cos(), center_m[1] + radius_m * a.sin()]
+                    })
+                    .collect();
+                (pts, *albedo_rgb)
+            }
+        }
+    }
+}
+
+fn is_convex(p: &[[f64; 2]]) -> bool {
+    let n = p.len();
+    let mut sign = 0.0f64;
+    for k in 0..n {
+        let (a, b, c) = (p[k], p[(k + 1) % n], p[(k + 2) % n]);
+        let cross = (b[0] - a[0]) * (c[1] - b[1]) - (b[1] - a[1]) * (c[0] - b[0]);
+        if cross.abs() < 1e-12 {
+            continue;
+        }
+        if sign == 0.0 {
+            sign = cross.signum();
+        } else if cross.signum() != sign {
+            return false;
+        }
+    }
+    sign != 0.0
+}
+
+/// The forward camera.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ForwardCameraConfig {
+    /// Image width (px).
+    pub width_px: u16,
+    /// Image height (px).
+    pub height_px: u16,
+    /// Focal length x (px).
+    pub fx_px: f64,
+    /// Focal length y (px).
+    pub fy_px: f64,
+    /// Principal point x (px).
+    pub cx_px: f64,
+    /// Principal point y (px).
+    pub cy_px: f64,
+    /// k1, k2, p1, p2, k3.
+    pub distortion: [f64; 5],
+    /// Camera centre in the body frame (m).
+    pub mount_offset_body_m: [f64; 3],
+    /// Roll, pitch, yaw of the camera relative to looking straight forward (deg).
+    pub mount_rotation_deg: [f64; 3],
+    /// Sensor noise (grey levels, 1 sigma).
+    pub noise_sigma: f64,
+    /// Optical blur (px, Gaussian sigma).
+    pub blur_sigma_px: f64,
+    /// Exposure gain.
+    pub exposure: f64,
+}
+
+/// A whole scenario.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    /// Short name.
+    pub name: String,
+    /// One line of description.
+    #[serde(default)]
+    pub description: String,
+    /// The scene.
+    pub scene: SceneConfig,
+    /// The forward camera.
+    pub forward_camera: ForwardCameraConfig,
+}
+
+fn check(ok: bool, field: &str, what: &str) -> Result<()> {
+    if ok { Ok(()) } else { bail!("invalid value of `{field}`: {what}") }
+}
+
+fn finite(v: &[f64]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+impl Scenario {
+    /// A built-in scenario by name, or a TOML file by path.
+    pub fn load(name_or_path: &str) -> Result<Scenario> {
+        if let Some((_, text)) = BUILT_IN.iter().find(|(n, _)| *n == name_or_path) {
+            return Scenario::from_toml(text).with_context(|| format!("built-in scenario `{name_or_path}`"));
+        }
+        let path = Path::new(name_or_path);
+        if !path.exists() {
+            let names: Vec<&str> = BUILT_IN.iter().map(|(n, _)| *n).collect();
+            bail!("no scenario file `{name_or_path}` (built-in scenarios: {})", names.join(", "));
+        }
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+        Scenario::from_toml(&text).with_context(|| format!("in scenario file {}", path.display()))
+    }
+
+    /// The built-in paper scenario.
+    pub fn paper() -> Scenario {
+        match Scenario::load("paper") {
+            Ok(s) => s,
+            Err(e) => panic!("the built-in paper scenario must parse: {e:#}"),
+        }
+    }
+
+    /// Parses and validates a scenario.
+    pub fn from_toml(text: &str) -> Result<Scenario> {
+        let s: Scenario = toml::from_str(text).map_err(|e| anyhow::anyhow!("{e}"))?;
+        s.validate()?;
+        Ok(s)
+    }
+
+    /// Checks every value; errors name the field.
+    pub fn validate(&self) -> Result<()> {
+        let sc = &self.scene;
+        check(finite(&[sc.line_x_start_m, sc.line_x_end_m, sc.line_z_bottom_m, sc.line_z_top_m]), "scene.line_*", "must be finite")?;
+        check(sc.line_x_end_m > sc.line_x_start_m, "scene.line_x_end_m", "must be greater than line_x_start_m")?;
+        check(sc.line_z_top_m > sc.line_z_bottom_m, "scene.line_z_top_m", "must be greater than line_z_bottom_m")?;
+        check(sc.line_z_bottom_m >= 0.0, "scene.line_z_bottom_m", "must be above the floor (>= 0)")?;
+        for (name, v) in [
+            ("scene.line_albedo_rgb", &sc.line_albedo_rgb),
+            ("scene.wall_albedo_rgb", &sc.wall_albedo_rgb),
+            ("scene.floor_albedo_rgb", &sc.floor_albedo_rgb),
+        ] {
+            check(finite(v) && v.iter().all(|x| (0.0..=1.0).contains(x)), name, "albedos must lie in [0, 1]")?;
+        }
+        check(
+            (0.0..=1.0).contains(&sc.wall_texture_contrast),
+            "scene.wall_texture_contrast",
+            "must lie in [0, 1]",
+        )?;
+        check(
+            (0.0..=1.0).contains(&sc.floor_texture_contrast),
+            "scene.floor_texture_contrast",
+            "must lie in [0, 1]",
+        )?;
+        check(sc.light_gain.is_finite() && sc.light_gain > 0.0, "scene.light_gain", "must be positive")?;
+        check(finite(&sc.light_gradient_per_m), "scene.light_gradient_per_m", "must be finite")?;
+        for (i, shape) in sc.shapes.iter().enumerate() {
+            let field = format!("scene.shapes[{i}]");
+            let (pts, albedo) = shape.polygon();
+            check(finite(&albedo) && albedo.iter().all(|x| (0.0..=1.0).contains(x)), &field, "albedos must lie in [0, 1]")?;
+            if let WallShape::Disc { radius_m, .. } = shape {
+                check(radius_m.is_finite() && *radius_m > 0.0, &field, "radius_m must be positive")?;
+            }
+            check(
+                pts.len() >= 3 && pts.iter().all(|p| finite(p)) && is_convex(&pts),
+                &field,
+                "points_m must be at least 3 finite points of a convex polygon",
+            )?;
+        }
+        let c = &self.forward_camera;
+        check(c.width_px >= 16 && c.width_px as usize <= vision_core::detect::MAX_DETECT_DIM, "forward_camera.width_px", "must be 16..=1280")?;
+        check(c.height_px >= 16 && c.height_px as usize <= vision_core::detect::MAX_DETECT_DIM, "forward_camera.height_px", "must be 16..=1280")?;
+        check(c.fx_px.is_finite() && c.fx_px > 0.0, "forward_camera.fx_px", "must be positive")?;
+        check(c.fy_px.is_finite() && c.fy_px > 0.0, "forward_camera.fy_px", "must be positive")?;
+        check(c.cx_px.is_finite(), "forward_camera.cx_px", "must be finite")?;
+        check(c.cy_px.is_finite(), "forward_camera.cy_px", "must be finite")?;
+        check(finite(&c.distortion), "forward_camera.distortion", "must be finite")?;
+        check(finite(&c.mount_offset_body_m), "forward_camera.mount_offset_body_m", "must be finite")?;
+        check(
+            finite(&c.mount_rotation_deg) && c.mount_rotation_deg.iter().all(|a| a.abs() <= 45.0),
+            "forward_camera.mount_rotation_deg",
+            "angles must lie within +-45 deg",
+        )?;
+        check(c.noise_sigma.is_finite() && c.noise_sigma >= 0.0, "forward_camera.noise_sigma", "must be >= 0")?;
+        check(
+            c.blur_sigma_px.is_finite() && (0.0..=5.0).contains(&c.blur_sigma_px),
+            "forward_camera.blur_sigma_px",
+            "must lie in [0, 5]",
+        )?;
+        check(c.exposure.is_finite() && c.exposure > 0.0, "forward_camera.exposure", "must be positive")?;
+        Ok(())
+    }
+
+    /// The line's geometry for vision-core.
+    pub fn line_target(&self) -> LineTarget {
+        let s = &self.scene;
+        LineTarget {
+            x_start_m: s.line_x_start_m as f32,
+            x_end_m: s.line_x_end_m as f32,
+            z_bottom_m: s.line_z_bottom_m as f32,
+            z_top_m: s.line_z_top_m as f32,
+        }
+    }
+
+    /// The forward camera's intrinsics for vision-core.
+    pub fn forward_camera_model(&self) -> CameraModel {
+        let c = &self.forward_camera;
+        let d = c.distortion.map(|v| v as f32);
+        CameraModel {
+            width: c.width_px,
+            height: c.height_px,
+            fx: c.fx_px as f32,
+            fy: c.fy_px as f32,
+            cx: c.cx_px as f32,
+            cy: c.cy_px as f32,
+            distortion: Distortion { k1: d[0], k2: d[1], p1: d[2], p2: d[3], k3: d[4] },
+        }
+    }
+
+    /// The forward camera's mount for vision-core.
+    pub fn forward_camera_mount(&self) -> CameraMount {
+        let c = &self.forward_camera;
+        let [r, p, y] = c.mount_rotation_deg.map(|a| geometry::deg(a as f32));
+        // The extra rotation is applied in the body frame around the nominal forward mount.
+        let extra = Mat3::from_euler_zyx(r, p, y);
+        let o = c.mount_offset_body_m.map(|v| v as f32);
+        CameraMount { body_from_camera: extra.mul_mat(&BODY_FROM_FORWARD_CAMERA), offset_body_m: Vec3::from_array(o) }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn paper_scenario_matches_the_issue() {
+        let s = Scenario::paper();
+        let t = s.line_target();
+        assert_eq!((t.x_start_m, t.x_end_m, t.z_bottom_m, t.z_top_m), (0.0, 2.30, 0.95, 1.05));
+        let c = s.forward_camera_model();
+        assert_eq!((c.width, c.height, c.fx, c.fy, c.cx, c.cy), (640, 480, 320.0, 320.0, 320.0, 240.0));
+        assert_eq!(s.forward_camera_mount(), CameraMount::FORWARD_AT_CENTRE);
+    }
+
+    #[test]
+    fn unknown_and_invalid_fields_are_named() {
+        let text = BUILT_IN[0].1;
+        let unknown = text.replace("light_gain = 1.0", "light_gain = 1.0\nlight_colour = 3");
+        let e = format!("{:#}", Scenario::from_toml(&unknown).unwrap_err());
+        assert!(e.contains("light_colour"), "{e}");
+        let bad = text.replace("line_z_top_m = 1.05", "line_z_top_m = 0.5");
+        let e = format!("{:#}", Scenario::from_toml(&bad).unwrap_err());
+        assert!(e.contains("scene.line_z_top_m"), "{e}");
+        let bad = text.replace("fx_px = 320.0", "fx_px = -1.0");
+        let e = format!("{:#}", Scenario::from_toml(&bad).unwrap_err());
+        assert!(e.contains("forward_camera.fx_px"), "{e}");
+        assert!(Scenario::load("no-such-scenario").is_err());
+    }
+}

@@ -1,0 +1,195 @@
+//! The ground station's vision: vision-core run on a rendered or recorded frame, with JSON reports and
+//! overlays for the command line.
+use crate::imageio::RgbImage;
+use crate::scenario::Scenario;
+use geometry::{Vec2, frames::Attitude};
+use serde_json::{Value, json};
+use vision_core::{
+    AttitudeSource, DetectorParams, DetectorWorkspace, LineObservation, NoTargetReason, PoseError, PoseParams,
+    PoseSolution, detect_line, solve_pose,
+};
+
+/// Which pose solver to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PoseMethod {
+    /// Closed form, then reprojection-error refinement (default).
+    Refined,
+    /// Closed form only: vanishing points and least-squares translation.
+    ClosedForm,
+    /// The paper's method: vanishing points and depth from the line's apparent height.
+    Paper,
+}
+
+impl PoseMethod {
+    /// Solver parameters for this method.
+    pub fn params(self) -> PoseParams {
+        match self {
+            PoseMethod::Refined => PoseParams::default(),
+            PoseMethod::ClosedForm => PoseParams { refine: false, check_ambiguity: false, ..PoseParams::default() },
+            PoseMethod::Paper => PoseParams {
+                refine: false,
+                check_ambiguity: false,
+                translation: vision_core::TranslationMethod::PaperLineHeight,
+                ..PoseParams::default()
+            },
+        }
+    }
+}
+
+/// Why a frame gave no pose.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NoPose {
+    /// The detector found no line.
+    Detection(NoTargetReason),
+    /// The solver rejected the measurement.
+    Solver(PoseError),
+}
+
+impl NoPose {
+    /// Stable code.
+    pub fn code(&self) -> &'static str {
+        match self {
+            NoPose::Detection(r) => r.code(),
+            NoPose::Solver(e) => e.code(),
+        }
+    }
+    /// Explanation.
+    pub fn describe(&self) -> &'static str {
+        match self {
+            NoPose::Detection(r) => r.describe(),
+            NoPose::Solver(e) => e.describe(),
+        }
+    }
+}
+
+/// A frame's vision result.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameResult {
+    /// The measurement.
+    pub observation: LineObservation,
+    /// The pose.
+    pub pose: PoseSolution,
+}
+
+/// Runs detection and pose on one frame.
+pub struct GroundVision {
+    scenario: Scenario,
+    detector: DetectorParams,
+    workspace: Box<DetectorWorkspace>,
+}
+
+impl GroundVision {
+    /// Vision for a scenario's camera and line.
+    pub fn new(scenario: &Scenario) -> Self {
+        Self { scenario: scenario.clone(), detector: DetectorParams::default(), workspace: Box::new(DetectorWorkspace::new()) }
+    }
+
+    /// Detects the line.
+    pub fn detect(&mut self, img: &RgbImage) -> Result<LineObservation, NoTargetReason> {
+        let cam = self.scenario.forward_camera_model();
+        detect_line(&img.view(), &cam, &self.detector, &mut self.workspace)
+    }
+
+    /// Detects the line and solves the pose.
+    pub fn pose(&mut self, img: &RgbImage, source: AttitudeSource, method: PoseMethod) -> Result<FrameResult, NoPose> {
+        let observation = self.detect(img).map_err(NoPose::Detection)?;
+        let s = &self.scenario;
+        let pose = solve_pose(
+            &observation,
+            &s.forward_camera_model(),
+            &s.line_target(),
+            &s.forward_camera_mount(),
+            source,
+            &method.params(),
+        )
+        .map_err(NoPose::Solver)?;
+        Ok(FrameResult { observation, pose })
+    }
+
+    /// The scenario.
+    pub fn scenario(&self) -> &Scenario {
+        &self.scenario
+    }
+}
+
+fn r6(v: f32) -> Value {
+    // Six decimals: sub-micrometre, and stable text for tests and diffs.
+    json!((v as f64 * 1e6).round() / 1e6)
+}
+
+/// The JSON report of `sim-host vision pose` for a successful frame.
+pub fn pose_json(r: &FrameResult, scenario: &Scenario, source: AttitudeSource) -> Value {
+    let p = &r.pose;
+    let cam = scenario.forward_camera_model();
+    let corners: Vec<Value> =
+        r.observation.corners_px(&cam).iter().map(|c| c.map_or(Value::Null, |c| json!([r6(c.x), r6(c.y)]))).collect();
+    let rot: Vec<Value> = p.camera_from_world.m.iter().map(|row| json!([r6(row[0]), r6(row[1]), r6(row[2])])).collect();
+    let a: Attitude = p.attitude;
+    let finite_or_null = |v: f32| if v.is_finite() { r6(v) } else { Value::Null };
+    json!({
+        "status": "ok",
+        "position_m": {
+            "x": if p.x_observed { r6(p.camera_position_m.x) } else { Value::Null },
+            "y": r6(p.camera_position_m.y),
+            "z": r6(p.camera_position_m.z),
+        },
+        "rotation": rot,
+        "corners_px": corners,
+        "real_corners": p.real_corners,
+        "reprojection_rms_px": r6(p.reprojection_rms_px),
+        "ambiguity_ratio": r6(p.ambiguity_ratio),
+        "position_std_m": {
+            "x": if p.x_observed { finite_or_null(p.position_std_m.x) } else { Value::Null },
+            "y": finite_or_null(p.position_std_m.y),
+            "z": finite_or_null(p.position_std_m.z),
+        },
+        "attitude_deg": {
+            "roll": r6(geometry::to_deg(a.roll)),
+            "pitch": r6(geometry::to_deg(a.pitch)),
+            "yaw": r6(geometry::to_deg(a.yaw)),
+        },
+        "solver": match source { AttitudeSource::ImageOnly => "image_only", AttitudeSource::Imu { .. } => "imu_aided" },
+        "conventions": {
+            "position_m": "camera centre, world frame (x along the wall, y from the wall to the vehicle, z up)",
+            "rotation": "R_CW, world to camera (columns: world axes in OpenCV camera coordinates)",
+            "corners_px": "A (x_start, bottom), B (x_start, top), C (x_end, top), D (x_end, bottom); null when not in view",
+        },
+    })
+}
+
+/// The JSON report for a frame without a pose.
+pub fn no_target_json(why: NoPose) -> Value {
+    json!({"status": "no_target", "reason": why.code(), "detail": why.describe()})
+}
+
+/// Draws the measured edges and corners over the frame.
+pub fn draw_overlay(img: &mut RgbImage, obs: &LineObservation, scenario: &Scenario) {
+    let cam = scenario.forward_camera_model();
+    let edges = [
+        (Some(obs.top), [0, 255, 0]),
+        (Some(obs.bottom), [0, 255, 0]),
+        (obs.start_end, [0, 200, 255]),
+        (obs.finish_end, [0, 200, 255]),
+    ];
+    for (e, colour) in edges {
+        let Some(e) = e else { continue };
+        let (a, b) = e.extent();
+        let (pa, pb) = (cam.normalized_to_pixel(a), cam.normalized_to_pixel(b));
+        let n = ((pb - pa).norm() as usize).max(1);
+        for i in 0..=n {
+            let p = pa + (pb - pa) * (i as f32 / n as f32);
+            img.put(p.x.round() as i64, p.y.round() as i64, colour);
+        }
+    }
+    for c in obs.corners_px(&cam).into_iter().flatten() {
+        draw_cross(img, c, [255, 255, 0]);
+    }
+}
+
+fn draw_cross(img: &mut RgbImage, c: Vec2, colour: [u8; 3]) {
+    let (x, y) = (c.x.round() as i64, c.y.round() as i64);
+    for d in -6..=6 {
+        img.put(x + d, y, colour);
+        img.put(x, y + d, colour);
+    }
+}

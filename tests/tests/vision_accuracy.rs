@@ -1,0 +1,141 @@
+//! Accuracy of the forward-camera pose over the flight envelope, on rendered frames (the renderer is the
+//! source of truth: exact area anti-aliasing, textures, lighting gain and gradients, sensor noise).
+use geometry::{Vec3, deg, to_deg};
+use sim_host::Scenario;
+use sim_host::render::ForwardRenderer;
+use sim_host::rng::SimRng;
+use sim_host::vision::{GroundVision, PoseMethod};
+use system_tests::{EnvelopeFrame, both_ends_in_view, envelope_frames, median_p95};
+use vision_core::AttitudeSource;
+
+/// Per-coordinate errors of one solver over a set of frames.
+#[derive(Default)]
+struct Errors {
+    xyz: [Vec<f64>; 3],
+    yaw_deg: Vec<f64>,
+    /// |x error| of frames with an end outside the image where x was reported.
+    x_one_end: Vec<f64>,
+    x_unknown: usize,
+    no_pose: usize,
+    frames: usize,
+}
+
+impl Errors {
+    fn report(&self, name: &str) {
+        eprintln!("{name}: {} frames, {} without a pose, {} with x unknown", self.frames, self.no_pose, self.x_unknown);
+        for (k, c) in ["x", "y", "z"].iter().enumerate() {
+            let (m, p) = median_p95(&self.xyz[k]);
+            eprintln!("  {c}: n = {:3}  median {:6.2} mm  p95 {:6.2} mm", self.xyz[k].len(), 1e3 * m, 1e3 * p);
+        }
+        let (m, p) = median_p95(&self.yaw_deg);
+        eprintln!("  yaw: median {m:.3} deg  p95 {p:.3} deg");
+        let max1 = self.x_one_end.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+        eprintln!("  one end out of view: {} frames reported x, max |x error| {:.2} mm", self.x_one_end.len(), 1e3 * max1);
+    }
+
+    /// The bounds: median <= 1 cm and 95th percentile <= 3 cm for every observed coordinate.
+    fn assert_bounds(&self, name: &str) {
+        for (k, c) in ["x", "y", "z"].iter().enumerate() {
+            let (m, p) = median_p95(&self.xyz[k]);
+            assert!(self.xyz[k].len() >= 100, "{name} {c}: only {} samples", self.xyz[k].len());
+            assert!(m <= 0.01 && p <= 0.03, "{name} {c}: median {m} p95 {p}");
+        }
+        // Never a wrong x: every x reported with an end out of view is within the 95th-percentile bound.
+        for e in &self.x_one_end {
+            assert!(e.abs() <= 0.03, "{name}: x error {e} m with an end out of view");
+        }
+    }
+}
+
+fn evaluate(frames: &[EnvelopeFrame], blur_px: f64, source: impl Fn(&EnvelopeFrame, &mut SimRng) -> AttitudeSource) -> Errors {
+    let scenario = Scenario::paper();
+    let renderer = ForwardRenderer::new(&scenario).unwrap();
+    let mut vision = GroundVision::new(&scenario);
+    let mount = scenario.forward_camera_mount();
+    let mut noise = SimRng::stream(2024, "imu-attitude-noise");
+    let mut e = Errors::default();
+    for f in frames {
+        e.frames += 1;
+        let mut settings = renderer.default_settings();
+        settings.light_gain = f.light_gain;
+        settings.light_gradient_per_m = f.light_gradient_per_m;
+        settings.seed = f.seed;
+        settings.blur_sigma_px = blur_px;
+        let r_wc = f.attitude.world_from_body().mul_mat(&mount.body_from_camera);
+        let img = renderer.render(&r_wc, f.position, &settings);
+        let src = source(f, &mut noise);
+        let Ok(r) = vision.pose(&img, src, PoseMethod::Refined) else {
+            e.no_pose += 1;
+            continue;
+        };
+        let err: Vec3 = r.pose.camera_position_m - f.position;
+        if r.pose.x_observed {
+            e.xyz[0].push(err.x as f64);
+            if r.pose.real_corners < 4 {
+                e.x_one_end.push(err.x as f64);
+            }
+        } else {
+            e.x_unknown += 1;
+        }
+        e.xyz[1].push(err.y as f64);
+        e.xyz[2].push(err.z as f64);
+        e.yaw_deg.push(to_deg(geometry::wrap_pi(r.pose.attitude.yaw - f.attitude.yaw)) as f64);
+    }
+    e
+}
+
+/// True roll and pitch plus 0.5 deg (1 sigma) of noise, as an IMU would give them.
+fn imu(f: &EnvelopeFrame, n: &mut SimRng) -> AttitudeSource {
+    AttitudeSource::Imu {
+        roll: f.attitude.roll + deg(0.5 * n.normal() as f32),
+        pitch: f.attitude.pitch + deg(0.5 * n.normal() as f32),
+        sigma_rad: deg(0.5),
+    }
+}
+
+#[test]
+fn imu_aided_pose_over_the_envelope() {
+    let frames = envelope_frames(240, 2024);
+    let e = evaluate(&frames, 0.0, imu);
+    e.report("IMU-aided, 240 frames over the envelope");
+    assert_eq!(e.no_pose, 0);
+    assert!(e.x_one_end.len() + e.x_unknown >= 100, "the envelope must include many frames with an end out of view");
+    e.assert_bounds("IMU-aided");
+}
+
+#[test]
+fn image_only_pose_with_all_four_corners() {
+    let scenario = Scenario::paper();
+    let frames: Vec<EnvelopeFrame> =
+        envelope_frames(4000, 99).into_iter().filter(|f| both_ends_in_view(&scenario, f)).take(200).collect();
+    assert_eq!(frames.len(), 200);
+    let e = evaluate(&frames, 0.0, |_, _| AttitudeSource::ImageOnly);
+    e.report("image only, 200 frames with both ends in view");
+    assert_eq!(e.no_pose, 0);
+    e.assert_bounds("image only");
+    let (yaw_median, _) = median_p95(&e.yaw_deg);
+    assert!(yaw_median <= 0.5, "yaw median {yaw_median} deg");
+}
+
+#[test]
+fn image_only_never_reports_a_wrong_x_with_an_end_out_of_view() {
+    let frames = envelope_frames(240, 2024);
+    let e = evaluate(&frames, 0.0, |_, _| AttitudeSource::ImageOnly);
+    e.report("image only, 240 frames over the envelope");
+    for x in &e.x_one_end {
+        assert!(x.abs() <= 0.03, "x error {x} m with an end out of view");
+    }
+}
+
+#[test]
+fn imu_aided_pose_with_optical_blur() {
+    // Not in the envelope: a defocused lens (1 px Gaussian blur) must not break the edge measurement.
+    let frames = envelope_frames(120, 7);
+    let e = evaluate(&frames, 1.0, imu);
+    e.report("IMU-aided with 1 px blur, 120 frames");
+    assert_eq!(e.no_pose, 0);
+    for (k, c) in ["x", "y", "z"].iter().enumerate() {
+        let (m, p) = median_p95(&e.xyz[k]);
+        assert!(m <= 0.01 && p <= 0.03, "{c}: median {m} p95 {p}");
+    }
+}
