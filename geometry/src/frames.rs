@@ -90,6 +90,10 @@ mod tests {
         assert!(thrust.x < 0.0 && thrust.y.abs() < 1e-7);
         let a = Attitude::new(0.05, -0.03, 0.2);
         let b = Attitude::from_world_from_body(&a.world_from_body());
-        assert!((a.roll - b.roll).abs() < 1e-6 && (a.pitch - b.pitch).abs() < 1e-6 && (a.yaw - b.yaw).abs() < 1e-6);
+        assert!(
+            (a.roll - b.roll).abs() < 1e-6
+                && (a.pitch - b.pitch).abs() < 1e-6
+                && (a.yaw - b.yaw).abs() < 1e-6
+        );
     }
 }

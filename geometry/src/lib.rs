@@ -12,6 +12,8 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+// Index loops read naturally in small dense linear algebra; `!(x > 0.0)` deliberately rejects NaN.
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod frames;
 mod mat;
@@ -35,9 +37,7 @@ pub fn wrap_pi(a: f32) -> f32 {
 
 /// Clamps `x` to `[lo, hi]`; a NaN input returns `lo` so that downstream math never sees NaN.
 pub fn clamp_finite(x: f32, lo: f32, hi: f32) -> f32 {
-    if x.is_nan() {
-        lo
-    } else if x < lo {
+    if x.is_nan() || x < lo {
         lo
     } else if x > hi {
         hi

@@ -40,8 +40,12 @@ fn bench(c: &mut Criterion) {
             solve_pose(&obs, &cam, &target, &mount, AttitudeSource::ImageOnly, &pp).expect("pose")
         })
     });
-    g.bench_function("detect_only", |b| b.iter(|| detect_line(black_box(&img.view()), &cam, &params, &mut ws)));
-    g.bench_function("pose_only_imu_aided", |b| b.iter(|| solve_pose(black_box(&obs), &cam, &target, &mount, imu, &pp)));
+    g.bench_function("detect_only", |b| {
+        b.iter(|| detect_line(black_box(&img.view()), &cam, &params, &mut ws))
+    });
+    g.bench_function("pose_only_imu_aided", |b| {
+        b.iter(|| solve_pose(black_box(&obs), &cam, &target, &mount, imu, &pp))
+    });
     g.finish();
     c.bench_function("render_forward_640x480", |b| {
         b.iter(|| renderer.render(black_box(&r_wc), Vec3::new(1.15, 1.45, 0.8), &settings))

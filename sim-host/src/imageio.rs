@@ -97,7 +97,8 @@ fn decode(path: &Path) -> Result<(png::OutputInfo, Vec<u8>), ImageIoError> {
     let mut decoder = png::Decoder::new(BufReader::new(file));
     decoder.set_transformations(png::Transformations::normalize_to_color8());
     let mut reader = decoder.read_info().map_err(|e| ImageIoError::NotPng(e.to_string()))?;
-    let size = reader.output_buffer_size().ok_or_else(|| ImageIoError::Unsupported("image too large".into()))?;
+    let size =
+        reader.output_buffer_size().ok_or_else(|| ImageIoError::Unsupported("image too large".into()))?;
     let mut buf = vec![0; size];
     let info = reader.next_frame(&mut buf).map_err(|e| ImageIoError::NotPng(e.to_string()))?;
     buf.truncate(info.buffer_size());
@@ -113,7 +114,9 @@ pub fn read_png_rgb(path: &Path) -> Result<RgbImage, ImageIoError> {
         png::ColorType::Rgb => buf,
         png::ColorType::Rgba => buf.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
         other => {
-            return Err(ImageIoError::Unsupported(format!("{other:?} image: a colour (RGB or RGBA) image is needed")));
+            return Err(ImageIoError::Unsupported(format!(
+                "{other:?} image: a colour (RGB or RGBA) image is needed"
+            )));
         }
     };
     if data.len() != 3 * w * h {

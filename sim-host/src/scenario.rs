@@ -173,7 +173,8 @@ impl Scenario {
             let names: Vec<&str> = BUILT_IN.iter().map(|(n, _)| *n).collect();
             bail!("no scenario file `{name_or_path}` (built-in scenarios: {})", names.join(", "));
         }
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
         Scenario::from_toml(&text).with_context(|| format!("in scenario file {}", path.display()))
     }
 
@@ -195,16 +196,32 @@ impl Scenario {
     /// Checks every value; errors name the field.
     pub fn validate(&self) -> Result<()> {
         let sc = &self.scene;
-        check(finite(&[sc.line_x_start_m, sc.line_x_end_m, sc.line_z_bottom_m, sc.line_z_top_m]), "scene.line_*", "must be finite")?;
-        check(sc.line_x_end_m > sc.line_x_start_m, "scene.line_x_end_m", "must be greater than line_x_start_m")?;
-        check(sc.line_z_top_m > sc.line_z_bottom_m, "scene.line_z_top_m", "must be greater than line_z_bottom_m")?;
+        check(
+            finite(&[sc.line_x_start_m, sc.line_x_end_m, sc.line_z_bottom_m, sc.line_z_top_m]),
+            "scene.line_*",
+            "must be finite",
+        )?;
+        check(
+            sc.line_x_end_m > sc.line_x_start_m,
+            "scene.line_x_end_m",
+            "must be greater than line_x_start_m",
+        )?;
+        check(
+            sc.line_z_top_m > sc.line_z_bottom_m,
+            "scene.line_z_top_m",
+            "must be greater than line_z_bottom_m",
+        )?;
         check(sc.line_z_bottom_m >= 0.0, "scene.line_z_bottom_m", "must be above the floor (>= 0)")?;
         for (name, v) in [
             ("scene.line_albedo_rgb", &sc.line_albedo_rgb),
             ("scene.wall_albedo_rgb", &sc.wall_albedo_rgb),
             ("scene.floor_albedo_rgb", &sc.floor_albedo_rgb),
         ] {
-            check(finite(v) && v.iter().all(|x| (0.0..=1.0).contains(x)), name, "albedos must lie in [0, 1]")?;
+            check(
+                finite(v) && v.iter().all(|x| (0.0..=1.0).contains(x)),
+                name,
+                "albedos must lie in [0, 1]",
+            )?;
         }
         check(
             (0.0..=1.0).contains(&sc.wall_texture_contrast),
@@ -221,7 +238,11 @@ impl Scenario {
         for (i, shape) in sc.shapes.iter().enumerate() {
             let field = format!("scene.shapes[{i}]");
             let (pts, albedo) = shape.polygon();
-            check(finite(&albedo) && albedo.iter().all(|x| (0.0..=1.0).contains(x)), &field, "albedos must lie in [0, 1]")?;
+            check(
+                finite(&albedo) && albedo.iter().all(|x| (0.0..=1.0).contains(x)),
+                &field,
+                "albedos must lie in [0, 1]",
+            )?;
             if let WallShape::Disc { radius_m, .. } = shape {
                 check(radius_m.is_finite() && *radius_m > 0.0, &field, "radius_m must be positive")?;
             }
@@ -232,8 +253,16 @@ impl Scenario {
             )?;
         }
         let c = &self.forward_camera;
-        check(c.width_px >= 16 && c.width_px as usize <= vision_core::detect::MAX_DETECT_DIM, "forward_camera.width_px", "must be 16..=1280")?;
-        check(c.height_px >= 16 && c.height_px as usize <= vision_core::detect::MAX_DETECT_DIM, "forward_camera.height_px", "must be 16..=1280")?;
+        check(
+            c.width_px >= 16 && c.width_px as usize <= vision_core::detect::MAX_DETECT_DIM,
+            "forward_camera.width_px",
+            "must be 16..=1280",
+        )?;
+        check(
+            c.height_px >= 16 && c.height_px as usize <= vision_core::detect::MAX_DETECT_DIM,
+            "forward_camera.height_px",
+            "must be 16..=1280",
+        )?;
         check(c.fx_px.is_finite() && c.fx_px > 0.0, "forward_camera.fx_px", "must be positive")?;
         check(c.fy_px.is_finite() && c.fy_px > 0.0, "forward_camera.fy_px", "must be positive")?;
         check(c.cx_px.is_finite(), "forward_camera.cx_px", "must be finite")?;
@@ -245,7 +274,11 @@ impl Scenario {
             "forward_camera.mount_rotation_deg",
             "angles must lie within +-45 deg",
         )?;
-        check(c.noise_sigma.is_finite() && c.noise_sigma >= 0.0, "forward_camera.noise_sigma", "must be >= 0")?;
+        check(
+            c.noise_sigma.is_finite() && c.noise_sigma >= 0.0,
+            "forward_camera.noise_sigma",
+            "must be >= 0",
+        )?;
         check(
             c.blur_sigma_px.is_finite() && (0.0..=5.0).contains(&c.blur_sigma_px),
             "forward_camera.blur_sigma_px",
@@ -288,7 +321,10 @@ impl Scenario {
         // The extra rotation is applied in the body frame around the nominal forward mount.
         let extra = Mat3::from_euler_zyx(r, p, y);
         let o = c.mount_offset_body_m.map(|v| v as f32);
-        CameraMount { body_from_camera: extra.mul_mat(&BODY_FROM_FORWARD_CAMERA), offset_body_m: Vec3::from_array(o) }
+        CameraMount {
+            body_from_camera: extra.mul_mat(&BODY_FROM_FORWARD_CAMERA),
+            offset_body_m: Vec3::from_array(o),
+        }
     }
 }
 

@@ -5,8 +5,8 @@ use crate::scenario::Scenario;
 use geometry::{Vec2, frames::Attitude};
 use serde_json::{Value, json};
 use vision_core::{
-    AttitudeSource, DetectorParams, DetectorWorkspace, LineObservation, NoTargetReason, PoseError, PoseParams,
-    PoseSolution, detect_line, solve_pose,
+    AttitudeSource, DetectorParams, DetectorWorkspace, LineObservation, NoTargetReason, PoseError,
+    PoseParams, PoseSolution, detect_line, solve_pose,
 };
 
 /// Which pose solver to run.
@@ -25,7 +25,9 @@ impl PoseMethod {
     pub fn params(self) -> PoseParams {
         match self {
             PoseMethod::Refined => PoseParams::default(),
-            PoseMethod::ClosedForm => PoseParams { refine: false, check_ambiguity: false, ..PoseParams::default() },
+            PoseMethod::ClosedForm => {
+                PoseParams { refine: false, check_ambiguity: false, ..PoseParams::default() }
+            }
             PoseMethod::Paper => PoseParams {
                 refine: false,
                 check_ambiguity: false,
@@ -81,7 +83,11 @@ pub struct GroundVision {
 impl GroundVision {
     /// Vision for a scenario's camera and line.
     pub fn new(scenario: &Scenario) -> Self {
-        Self { scenario: scenario.clone(), detector: DetectorParams::default(), workspace: Box::new(DetectorWorkspace::new()) }
+        Self {
+            scenario: scenario.clone(),
+            detector: DetectorParams::default(),
+            workspace: Box::new(DetectorWorkspace::new()),
+        }
     }
 
     /// Detects the line.
@@ -91,7 +97,12 @@ impl GroundVision {
     }
 
     /// Detects the line and solves the pose.
-    pub fn pose(&mut self, img: &RgbImage, source: AttitudeSource, method: PoseMethod) -> Result<FrameResult, NoPose> {
+    pub fn pose(
+        &mut self,
+        img: &RgbImage,
+        source: AttitudeSource,
+        method: PoseMethod,
+    ) -> Result<FrameResult, NoPose> {
         let observation = self.detect(img).map_err(NoPose::Detection)?;
         let s = &self.scenario;
         let pose = solve_pose(
@@ -121,9 +132,14 @@ fn r6(v: f32) -> Value {
 pub fn pose_json(r: &FrameResult, scenario: &Scenario, source: AttitudeSource) -> Value {
     let p = &r.pose;
     let cam = scenario.forward_camera_model();
-    let corners: Vec<Value> =
-        r.observation.corners_px(&cam).iter().map(|c| c.map_or(Value::Null, |c| json!([r6(c.x), r6(c.y)]))).collect();
-    let rot: Vec<Value> = p.camera_from_world.m.iter().map(|row| json!([r6(row[0]), r6(row[1]), r6(row[2])])).collect();
+    let corners: Vec<Value> = r
+        .observation
+        .corners_px(&cam)
+        .iter()
+        .map(|c| c.map_or(Value::Null, |c| json!([r6(c.x), r6(c.y)])))
+        .collect();
+    let rot: Vec<Value> =
+        p.camera_from_world.m.iter().map(|row| json!([r6(row[0]), r6(row[1]), r6(row[2])])).collect();
     let a: Attitude = p.attitude;
     let finite_or_null = |v: f32| if v.is_finite() { r6(v) } else { Value::Null };
     json!({

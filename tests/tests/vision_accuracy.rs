@@ -22,15 +22,27 @@ struct Errors {
 
 impl Errors {
     fn report(&self, name: &str) {
-        eprintln!("{name}: {} frames, {} without a pose, {} with x unknown", self.frames, self.no_pose, self.x_unknown);
+        eprintln!(
+            "{name}: {} frames, {} without a pose, {} with x unknown",
+            self.frames, self.no_pose, self.x_unknown
+        );
         for (k, c) in ["x", "y", "z"].iter().enumerate() {
             let (m, p) = median_p95(&self.xyz[k]);
-            eprintln!("  {c}: n = {:3}  median {:6.2} mm  p95 {:6.2} mm", self.xyz[k].len(), 1e3 * m, 1e3 * p);
+            eprintln!(
+                "  {c}: n = {:3}  median {:6.2} mm  p95 {:6.2} mm",
+                self.xyz[k].len(),
+                1e3 * m,
+                1e3 * p
+            );
         }
         let (m, p) = median_p95(&self.yaw_deg);
         eprintln!("  yaw: median {m:.3} deg  p95 {p:.3} deg");
         let max1 = self.x_one_end.iter().fold(0.0f64, |a, b| a.max(b.abs()));
-        eprintln!("  one end out of view: {} frames reported x, max |x error| {:.2} mm", self.x_one_end.len(), 1e3 * max1);
+        eprintln!(
+            "  one end out of view: {} frames reported x, max |x error| {:.2} mm",
+            self.x_one_end.len(),
+            1e3 * max1
+        );
     }
 
     /// The bounds: median <= 1 cm and 95th percentile <= 3 cm for every observed coordinate.
@@ -47,7 +59,11 @@ impl Errors {
     }
 }
 
-fn evaluate(frames: &[EnvelopeFrame], blur_px: f64, source: impl Fn(&EnvelopeFrame, &mut SimRng) -> AttitudeSource) -> Errors {
+fn evaluate(
+    frames: &[EnvelopeFrame],
+    blur_px: f64,
+    source: impl Fn(&EnvelopeFrame, &mut SimRng) -> AttitudeSource,
+) -> Errors {
     let scenario = Scenario::paper();
     let renderer = ForwardRenderer::new(&scenario).unwrap();
     let mut vision = GroundVision::new(&scenario);
@@ -99,7 +115,10 @@ fn imu_aided_pose_over_the_envelope() {
     let e = evaluate(&frames, 0.0, imu);
     e.report("IMU-aided, 240 frames over the envelope");
     assert_eq!(e.no_pose, 0);
-    assert!(e.x_one_end.len() + e.x_unknown >= 100, "the envelope must include many frames with an end out of view");
+    assert!(
+        e.x_one_end.len() + e.x_unknown >= 100,
+        "the envelope must include many frames with an end out of view"
+    );
     e.assert_bounds("IMU-aided");
 }
 

@@ -20,10 +20,30 @@ fn distractors() -> Vec<(&'static str, Vec<WallShape>)> {
         ("disc", vec![WallShape::Disc { center_m: [1.0, 1.0], radius_m: 0.15, albedo_rgb: RED }]),
         ("square", vec![rect(0.9, 1.2, 0.85, 1.15)]),
         ("thick bar", vec![rect(0.6, 1.4, 0.85, 1.15)]),
-        ("triangle", vec![WallShape::Polygon { points_m: vec![[0.7, 0.9], [1.5, 0.9], [1.1, 1.3]], albedo_rgb: RED }]),
-        ("outline", vec![rect(0.4, 1.8, 0.9, 0.93), rect(0.4, 1.8, 1.07, 1.1), rect(0.4, 0.43, 0.9, 1.1), rect(1.77, 1.8, 0.9, 1.1)]),
+        (
+            "triangle",
+            vec![WallShape::Polygon { points_m: vec![[0.7, 0.9], [1.5, 0.9], [1.1, 1.3]], albedo_rgb: RED }],
+        ),
+        (
+            "outline",
+            vec![
+                rect(0.4, 1.8, 0.9, 0.93),
+                rect(0.4, 1.8, 1.07, 1.1),
+                rect(0.4, 0.43, 0.9, 1.1),
+                rect(1.77, 1.8, 0.9, 1.1),
+            ],
+        ),
         ("short bar", vec![rect(0.9, 1.3, 0.95, 1.05)]),
-        ("dots", (0..6).map(|i| WallShape::Disc { center_m: [0.3 + 0.35 * i as f64, 1.0 + 0.1 * (i % 2) as f64], radius_m: 0.04, albedo_rgb: RED }).collect()),
+        (
+            "dots",
+            (0..6)
+                .map(|i| WallShape::Disc {
+                    center_m: [0.3 + 0.35 * i as f64, 1.0 + 0.1 * (i % 2) as f64],
+                    radius_m: 0.04,
+                    albedo_rgb: RED,
+                })
+                .collect(),
+        ),
         ("bar 0.9 m", vec![rect(0.7, 1.6, 0.95, 1.05)]),
     ]
 }
@@ -52,7 +72,8 @@ fn frames_without_the_line_give_no_pose() {
             settings.seed = f.seed;
             let r_wc = f.attitude.world_from_body().mul_mat(&mount.body_from_camera);
             let img = renderer.render(&r_wc, pos, &settings);
-            let imu = AttitudeSource::Imu { roll: f.attitude.roll, pitch: f.attitude.pitch, sigma_rad: deg(0.5) };
+            let imu =
+                AttitudeSource::Imu { roll: f.attitude.roll, pitch: f.attitude.pitch, sigma_rad: deg(0.5) };
             for source in [AttitudeSource::ImageOnly, imu] {
                 checked += 1;
                 match vision.pose(&img, source, PoseMethod::Refined) {
@@ -63,5 +84,10 @@ fn frames_without_the_line_give_no_pose() {
         }
     }
     assert!(checked >= 100, "{checked}");
-    assert!(failures.is_empty(), "{} of {checked} distractor frames gave a pose:\n{}", failures.len(), failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "{} of {checked} distractor frames gave a pose:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
 }

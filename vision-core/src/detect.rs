@@ -56,9 +56,13 @@ impl NoTargetReason {
     /// A short human-readable explanation.
     pub fn describe(&self) -> &'static str {
         match self {
-            NoTargetReason::BadImageSize => "image size does not match the camera model or exceeds the detector's limit",
+            NoTargetReason::BadImageSize => {
+                "image size does not match the camera model or exceeds the detector's limit"
+            }
             NoTargetReason::NoRedPixels => "no red pixels in the image",
-            NoTargetReason::NoLineShapedRegion => "red regions found, but none is a long thin horizontal band",
+            NoTargetReason::NoLineShapedRegion => {
+                "red regions found, but none is a long thin horizontal band"
+            }
             NoTargetReason::TooMuchRed => "too many red regions (run buffer full)",
             NoTargetReason::LineClipped => "the line's upper or lower edge leaves the image",
             NoTargetReason::TooFewEdgePoints => "too few sub-pixel points on the line's long edges",
@@ -156,7 +160,6 @@ struct Run {
 
 #[derive(Clone, Copy, Debug, Default)]
 struct Component {
-    root: u16,
     area: u32,
     x_min: u16,
     x_max: u16,
@@ -222,7 +225,6 @@ impl DetectorWorkspace {
     pub const fn new() -> Self {
         const RUN: Run = Run { y: 0, x0: 0, x1: 0 };
         const COMP: Component = Component {
-            root: 0,
             area: 0,
             x_min: 0,
             x_max: 0,
@@ -457,7 +459,6 @@ fn label_components(params: &DetectorParams, ws: &mut DetectorWorkspace) {
             let s = ws.n_comps;
             ws.n_comps += 1;
             ws.comps[s] = Component {
-                root: i as u16,
                 area: 0,
                 x_min: u16::MAX,
                 x_max: 0,
@@ -752,7 +753,11 @@ fn measure_band(
             }
         }
         if n < params.min_long_edge_points as usize {
-            return Err(if clipped * 2 > tried { NoTargetReason::LineClipped } else { NoTargetReason::TooFewEdgePoints });
+            return Err(if clipped * 2 > tried {
+                NoTargetReason::LineClipped
+            } else {
+                NoTargetReason::TooFewEdgePoints
+            });
         }
         let s = robust_fit(&ws.pts[..n], &mut ws.inlier, &mut ws.scratch, f_px, 0.1)
             .ok_or(NoTargetReason::TooFewEdgePoints)?;
@@ -807,11 +812,11 @@ fn measure_band(
             } else {
                 probe.measure(Profile::RightEnd, v, (coarse - 1, coarse + 3), coarse - 2 * half - 3, w)
             };
-            if let Some(u) = got {
-                if n < MAX_DETECT_DIM {
-                    ws.pts[n] = camera.pixel_to_normalized(Vec2::new(u, v as f32));
-                    n += 1;
-                }
+            if let Some(u) = got
+                && n < MAX_DETECT_DIM
+            {
+                ws.pts[n] = camera.pixel_to_normalized(Vec2::new(u, v as f32));
+                n += 1;
             }
         }
         if n < params.min_end_points as usize {
@@ -842,7 +847,8 @@ fn measure_band(
         Some(e) => intersect_px(camera, &top, &e).map_or(x_max as f32, |p| p.x),
         None => x_max as f32 + 0.5,
     };
-    let band_area = |u: f32| (line_v_at(camera, bottom.line(), u) - line_v_at(camera, top.line(), u)).max(0.0);
+    let band_area =
+        |u: f32| (line_v_at(camera, bottom.line(), u) - line_v_at(camera, top.line(), u)).max(0.0);
     let area = (u_right - u_left) * 0.5 * (band_area(u_left) + band_area(u_right));
     let fill = if area > 0.0 { comp.area as f32 / area } else { 0.0 };
     ws.diag.fill_ratio = fill;
@@ -929,7 +935,8 @@ mod tests {
             let mut n = 0;
             for a in 0..8 {
                 for b in 0..8 {
-                    let (x, y) = (i as f32 - 0.5 + (a as f32 + 0.5) / 8.0, j as f32 - 0.5 + (b as f32 + 0.5) / 8.0);
+                    let (x, y) =
+                        (i as f32 - 0.5 + (a as f32 + 0.5) / 8.0, j as f32 - 0.5 + (b as f32 + 0.5) / 8.0);
                     n += inside(x, y) as u32;
                 }
             }

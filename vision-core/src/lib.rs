@@ -12,6 +12,8 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+// Index loops read naturally in small dense linear algebra; `!(x > 0.0)` deliberately rejects NaN.
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod camera;
 pub mod detect;
@@ -24,5 +26,7 @@ pub use camera::{CameraModel, Distortion};
 pub use detect::{DetectionDiagnostics, DetectorParams, DetectorWorkspace, NoTargetReason, detect_line};
 pub use image::{Gray8View, Rgb8View};
 pub use observation::{EdgeStats, LineObservation};
-pub use pose::{AttitudeSource, CameraMount, PoseError, PoseParams, PoseSolution, TranslationMethod, solve_pose};
+pub use pose::{
+    AttitudeSource, CameraMount, PoseError, PoseParams, PoseSolution, TranslationMethod, solve_pose,
+};
 pub use target::{Corner, Edge, LineTarget};

@@ -205,12 +205,7 @@ pub fn project_observation(
         }
         stats[e as usize] = EdgeStats::from_points(pts[..n].iter().copied());
     }
-    Some(LineObservation {
-        top: stats[0]?,
-        bottom: stats[1]?,
-        start_end: stats[2],
-        finish_end: stats[3],
-    })
+    Some(LineObservation { top: stats[0]?, bottom: stats[1]?, start_end: stats[2], finish_end: stats[3] })
 }
 
 #[cfg(test)]

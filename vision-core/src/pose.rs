@@ -148,7 +148,9 @@ impl PoseError {
             PoseError::DegenerateEdges => "the two long edges coincide",
             PoseError::NeedBothEnds => "the image-only rotation needs both ends of the line in view",
             PoseError::Implausible => "the solution puts the line behind the camera or out of range",
-            PoseError::ReprojectionTooLarge => "reprojection error too large: the red shape is not the known line",
+            PoseError::ReprojectionTooLarge => {
+                "reprojection error too large: the red shape is not the known line"
+            }
             PoseError::Singular => "the least-squares system is singular",
             PoseError::Underdetermined => {
                 "the image alone cannot fix pitch and altitude here (no end, or one end, of the line in view): give an attitude"
@@ -258,7 +260,13 @@ impl Problem {
     }
 
     /// Residuals and Jacobian. Returns the number of residuals.
-    fn eval(&self, r_cw: &Mat3, t: Vec3, res: &mut [f32; MAX_RES], jac: Option<&mut [[f32; NP]; MAX_RES]>) -> usize {
+    fn eval(
+        &self,
+        r_cw: &Mat3,
+        t: Vec3,
+        res: &mut [f32; MAX_RES],
+        jac: Option<&mut [[f32; NP]; MAX_RES]>,
+    ) -> usize {
         let basis = t_basis(r_cw, self.fix_x);
         let np = self.n_params();
         let mut n = 0;
@@ -504,18 +512,29 @@ pub fn rotation_from_vanishing_points(obs: &LineObservation) -> Result<Mat3, Pos
         return Err(PoseError::NeedBothEnds);
     };
     let (from, dir) = x_direction_in_image(obs);
-    let vx = vanishing_direction(obs.top.line(), obs.bottom.line(), from, dir).ok_or(PoseError::DegenerateEdges)?;
+    let vx = vanishing_direction(obs.top.line(), obs.bottom.line(), from, dir)
+        .ok_or(PoseError::DegenerateEdges)?;
     let up_img = Vec2::new(0.0, -1.0);
-    let vz = vanishing_direction(start.line(), finish.line(), start.centroid, up_img).ok_or(PoseError::DegenerateEdges)?;
+    let vz = vanishing_direction(start.line(), finish.line(), start.centroid, up_img)
+        .ok_or(PoseError::DegenerateEdges)?;
     let vy = vz.cross(vx);
     Mat3::from_cols(vx, vy, vz).orthonormalized().ok_or(PoseError::DegenerateEdges)
 }
 
 /// IMU-aided rotation: roll and pitch of the vehicle given, yaw from the vanishing direction of the long
 /// edges. Returns `R_CW`.
-pub fn rotation_from_imu(obs: &LineObservation, mount: &CameraMount, roll: f32, pitch: f32) -> Result<Mat3, PoseError> {
+pub fn rotation_from_imu(
+    obs: &LineObservation,
+    mount: &CameraMount,
+    roll: f32,
+    pitch: f32,
+) -> Result<Mat3, PoseError> {
     // World +x in camera coordinates is B (sin yaw, cos yaw, 0), B = R_CB Rx(roll)^T Ry(pitch)^T.
-    let b = mount.body_from_camera.transpose().mul_mat(&Mat3::rot_x(roll).transpose()).mul_mat(&Mat3::rot_y(pitch).transpose());
+    let b = mount
+        .body_from_camera
+        .transpose()
+        .mul_mat(&Mat3::rot_x(roll).transpose())
+        .mul_mat(&Mat3::rot_y(pitch).transpose());
     let mut s = [[0.0f32; 2]; 2];
     for l in [obs.top.line(), obs.bottom.line()] {
         let g = b.tmul_vec(l);
@@ -581,7 +600,12 @@ fn translation_least_squares(
 
 /// The paper's translation (eq. 13-14): depth of a real corner from the line's apparent height there
 /// (`Z_A = f l / h`, scaled orthographic), then `T = (Z_A / f) Oa`. Coordinates relative to `origin`.
-fn translation_paper(r_cw: &Mat3, obs: &LineObservation, target: &LineTarget, origin: Vec3) -> Result<Vec3, PoseError> {
+fn translation_paper(
+    r_cw: &Mat3,
+    obs: &LineObservation,
+    target: &LineTarget,
+    origin: Vec3,
+) -> Result<Vec3, PoseError> {
     // Reference corner: the lower corner of an end in view (A, else D); the height is measured along that end.
     let (corner, end) = match (obs.start_end, obs.finish_end) {
         (Some(s), _) => (Corner::A, s),
@@ -697,7 +721,8 @@ pub fn solve_pose(
         let (p1, p2) = target.edge_points(e);
         edges[e as usize] = Some(EdgeTerm { stats: s, p1: p1 - origin, p2: p2 - origin });
     }
-    let problem = Problem { edges, inv_sigma: 1.0 / sigma, prior, body_from_camera: mount.body_from_camera, fix_x };
+    let problem =
+        Problem { edges, inv_sigma: 1.0 / sigma, prior, body_from_camera: mount.body_from_camera, fix_x };
     let image_only = Problem { prior: None, ..problem };
 
     let t0 = -r0.mul_vec(c0);
@@ -707,37 +732,38 @@ pub fn solve_pose(
     }
     let mut ambiguity_ratio = 0.0f32;
     let mut alternative = None;
-    if params.check_ambiguity && params.refine {
-        if let Some(rm) = mirror_pose(&r, t) {
-            let (rm, tm, _) = image_only.refine(rm, t, params.max_iterations);
-            let primary_ok = plausible(&image_only, &r, t);
-            if r.angle_to(&rm) > geometry::deg(1.0) && plausible(&image_only, &rm, tm) {
-                let rms_p = libm::sqrtf(image_only.image_mse(&r, t));
-                let rms_m = libm::sqrtf(image_only.image_mse(&rm, tm));
-                // Gravity reference: the IMU's up direction, else "near level".
-                let up_ref = prior.map_or(Vec3::Z, |p| p.0);
-                let tilt = |rr: &Mat3| {
-                    let up = mount.body_from_camera.mul_mat(rr).mul_vec(Vec3::Z);
-                    libm::acosf(geometry::clamp_finite(up.dot(up_ref), -1.0, 1.0))
-                };
-                // Both fit the image (likelihood-ratio test on the sigma-normalised costs, 3 sigma): gravity
-                // decides. With an IMU prior the primary solution already used gravity.
-                let both_fit = (image_only.cost(&rm, tm) - image_only.cost(&r, t)).abs() < 9.0;
-                let take_mirror = !primary_ok
-                    || (prior.is_none() && if both_fit { tilt(&rm) < tilt(&r) } else { rms_m < rms_p });
-                let (rms_keep, rms_other) = if take_mirror { (rms_m, rms_p) } else { (rms_p, rms_m) };
-                let (r_other, t_other) = if take_mirror { (r, t) } else { (rm, tm) };
-                if take_mirror {
-                    r = rm;
-                    t = tm;
-                }
-                ambiguity_ratio = if rms_other > 0.0 { (rms_keep / rms_other).min(1e3) } else { 1.0 };
-                alternative = Some(AlternativePose {
-                    camera_position_m: origin - r_other.tmul_vec(t_other),
-                    camera_from_world: r_other,
-                    reprojection_rms_px: rms_other * f_px,
-                });
+    if params.check_ambiguity
+        && params.refine
+        && let Some(rm) = mirror_pose(&r, t)
+    {
+        let (rm, tm, _) = image_only.refine(rm, t, params.max_iterations);
+        let primary_ok = plausible(&image_only, &r, t);
+        if r.angle_to(&rm) > geometry::deg(1.0) && plausible(&image_only, &rm, tm) {
+            let rms_p = libm::sqrtf(image_only.image_mse(&r, t));
+            let rms_m = libm::sqrtf(image_only.image_mse(&rm, tm));
+            // Gravity reference: the IMU's up direction, else "near level".
+            let up_ref = prior.map_or(Vec3::Z, |p| p.0);
+            let tilt = |rr: &Mat3| {
+                let up = mount.body_from_camera.mul_mat(rr).mul_vec(Vec3::Z);
+                libm::acosf(geometry::clamp_finite(up.dot(up_ref), -1.0, 1.0))
+            };
+            // Both fit the image (likelihood-ratio test on the sigma-normalised costs, 3 sigma): gravity
+            // decides. With an IMU prior the primary solution already used gravity.
+            let both_fit = (image_only.cost(&rm, tm) - image_only.cost(&r, t)).abs() < 9.0;
+            let take_mirror = !primary_ok
+                || (prior.is_none() && if both_fit { tilt(&rm) < tilt(&r) } else { rms_m < rms_p });
+            let (rms_keep, rms_other) = if take_mirror { (rms_m, rms_p) } else { (rms_p, rms_m) };
+            let (r_other, t_other) = if take_mirror { (r, t) } else { (rm, tm) };
+            if take_mirror {
+                r = rm;
+                t = tm;
             }
+            ambiguity_ratio = if rms_other > 0.0 { (rms_keep / rms_other).min(1e3) } else { 1.0 };
+            alternative = Some(AlternativePose {
+                camera_position_m: origin - r_other.tmul_vec(t_other),
+                camera_from_world: r_other,
+                reprojection_rms_px: rms_other * f_px,
+            });
         }
     }
     if !r.is_finite() || !t.is_finite() || !plausible(&image_only, &r, t) {
@@ -816,7 +842,10 @@ mod tests {
         for &x in &[0.0f32, 0.6, 1.15, 1.8, 2.3] {
             for &(y, z) in &[(1.0f32, 0.6f32), (1.3, 0.8), (1.6, 1.0)] {
                 for &(r, p, yw) in &[(0.0f32, 0.0f32, 0.0f32), (3.0, -4.0, 7.0), (-5.0, 5.0, -10.0)] {
-                    v.push((Vec3::new(x, y, z), Attitude::new(geometry::deg(r), geometry::deg(p), geometry::deg(yw))));
+                    v.push((
+                        Vec3::new(x, y, z),
+                        Attitude::new(geometry::deg(r), geometry::deg(p), geometry::deg(yw)),
+                    ));
                 }
             }
         }
@@ -844,8 +873,15 @@ mod tests {
             assert!((sol.attitude.yaw - att.yaw).abs() < 1e-4);
             checked[0] += 1;
             if obs.real_corners() == 4 {
-                let sol =
-                    solve_pose(&obs, &CAM, &t, &CameraMount::FORWARD_AT_CENTRE, AttitudeSource::ImageOnly, &params).unwrap();
+                let sol = solve_pose(
+                    &obs,
+                    &CAM,
+                    &t,
+                    &CameraMount::FORWARD_AT_CENTRE,
+                    AttitudeSource::ImageOnly,
+                    &params,
+                )
+                .unwrap();
                 let err = sol.camera_position_m - pos;
                 assert!(err.norm() < 1e-4, "image {pos:?} {att:?}: {err:?}");
                 assert!((sol.camera_from_world.det() - 1.0).abs() < 1e-5);
@@ -869,7 +905,9 @@ mod tests {
         let (r_cw, _) = camera_pose(pos, att);
         assert!(r_vp.angle_to(&r_cw) < 1e-4);
         assert!((r_vp.det() - 1.0).abs() < 1e-6);
-        let sol = solve_pose(&obs, &CAM, &t, &CameraMount::FORWARD_AT_CENTRE, AttitudeSource::ImageOnly, &params).unwrap();
+        let sol =
+            solve_pose(&obs, &CAM, &t, &CameraMount::FORWARD_AT_CENTRE, AttitudeSource::ImageOnly, &params)
+                .unwrap();
         assert!((sol.camera_position_m - pos).norm() < 2e-4, "{:?}", sol.camera_position_m);
     }
 
@@ -895,7 +933,11 @@ mod tests {
         )
         .unwrap();
         assert!((sol.camera_position_m - pos).norm() < 1e-4);
-        assert!(sol.attitude.roll.abs() < 1e-5 && sol.attitude.pitch.abs() < 1e-5 && sol.attitude.yaw.abs() < 1e-5);
+        assert!(
+            sol.attitude.roll.abs() < 1e-5
+                && sol.attitude.pitch.abs() < 1e-5
+                && sol.attitude.yaw.abs() < 1e-5
+        );
     }
 
     #[test]
@@ -906,11 +948,21 @@ mod tests {
         let obs = exact(&t, pos, Attitude::default());
         assert_eq!(obs.real_corners(), 0);
         let imu = AttitudeSource::Imu { roll: 0.0, pitch: 0.0, sigma_rad: 0.01 };
-        let sol = solve_pose(&obs, &CAM, &t, &CameraMount::FORWARD_AT_CENTRE, imu, &PoseParams::default()).unwrap();
+        let sol =
+            solve_pose(&obs, &CAM, &t, &CameraMount::FORWARD_AT_CENTRE, imu, &PoseParams::default()).unwrap();
         assert!(!sol.x_observed);
         assert!(sol.position_std_m.x.is_infinite());
-        assert!((sol.camera_position_m.y - pos.y).abs() < 1e-4 && (sol.camera_position_m.z - pos.z).abs() < 1e-4);
-        let r = solve_pose(&obs, &CAM, &t, &CameraMount::FORWARD_AT_CENTRE, AttitudeSource::ImageOnly, &PoseParams::default());
+        assert!(
+            (sol.camera_position_m.y - pos.y).abs() < 1e-4 && (sol.camera_position_m.z - pos.z).abs() < 1e-4
+        );
+        let r = solve_pose(
+            &obs,
+            &CAM,
+            &t,
+            &CameraMount::FORWARD_AT_CENTRE,
+            AttitudeSource::ImageOnly,
+            &PoseParams::default(),
+        );
         assert_eq!(r.unwrap_err(), PoseError::Underdetermined);
     }
 
@@ -925,15 +977,27 @@ mod tests {
         };
         let pos = Vec3::new(1.15, 1.5, 1.0);
         let obs = exact(&t, pos, Attitude::default());
-        let sol = solve_pose(&obs, &CAM, &t, &CameraMount::FORWARD_AT_CENTRE, AttitudeSource::ImageOnly, &params).unwrap();
+        let sol =
+            solve_pose(&obs, &CAM, &t, &CameraMount::FORWARD_AT_CENTRE, AttitudeSource::ImageOnly, &params)
+                .unwrap();
         assert!((sol.camera_position_m - pos).norm() < 1e-3);
         // Pitched by 8 degrees: the corner's depth from its apparent height is biased, least squares is not.
         let att = Attitude::new(geometry::deg(2.0), geometry::deg(8.0), geometry::deg(3.0));
         let obs = exact(&t, pos, att);
         assert_eq!(obs.real_corners(), 4);
-        let paper = solve_pose(&obs, &CAM, &t, &CameraMount::FORWARD_AT_CENTRE, AttitudeSource::ImageOnly, &params).unwrap();
+        let paper =
+            solve_pose(&obs, &CAM, &t, &CameraMount::FORWARD_AT_CENTRE, AttitudeSource::ImageOnly, &params)
+                .unwrap();
         let ls_params = PoseParams { refine: false, max_rms_px: 100.0, ..PoseParams::default() };
-        let ls = solve_pose(&obs, &CAM, &t, &CameraMount::FORWARD_AT_CENTRE, AttitudeSource::ImageOnly, &ls_params).unwrap();
+        let ls = solve_pose(
+            &obs,
+            &CAM,
+            &t,
+            &CameraMount::FORWARD_AT_CENTRE,
+            AttitudeSource::ImageOnly,
+            &ls_params,
+        )
+        .unwrap();
         let e_paper = (paper.camera_position_m - pos).norm();
         let e_ls = (ls.camera_position_m - pos).norm();
         assert!(e_paper > 10.0 * e_ls && e_paper > 1e-3, "paper {e_paper} ls {e_ls}");
@@ -962,10 +1026,13 @@ mod tests {
 
         // Now the vehicle really is pitched like the mirror: the image alone is fooled by "near level", the IMU
         // (gravity) is not.
-        let pitched = Attitude::from_world_from_body(&alt.camera_from_world.transpose().mul_mat(&BODY_FROM_FORWARD_CAMERA.transpose()));
+        let pitched = Attitude::from_world_from_body(
+            &alt.camera_from_world.transpose().mul_mat(&BODY_FROM_FORWARD_CAMERA.transpose()),
+        );
         let obs = exact(&t, alt.camera_position_m, pitched);
         let img = solve_pose(&obs, &CAM, &t, &mount, AttitudeSource::ImageOnly, &params).unwrap();
-        let imu = AttitudeSource::Imu { roll: pitched.roll, pitch: pitched.pitch, sigma_rad: geometry::deg(1.0) };
+        let imu =
+            AttitudeSource::Imu { roll: pitched.roll, pitch: pitched.pitch, sigma_rad: geometry::deg(1.0) };
         let with_imu = solve_pose(&obs, &CAM, &t, &mount, imu, &params).unwrap();
         let (r_pitched, _) = camera_pose(alt.camera_position_m, pitched);
         assert!(with_imu.camera_from_world.angle_to(&r_pitched) < geometry::deg(0.5));

@@ -62,7 +62,8 @@ pub struct LineTarget {
 
 impl LineTarget {
     /// 2.30 m long, 0.10 m high, lower edge 0.95 m above the floor, ends at x = 0 and x = 2.30 m.
-    pub const PAPER: LineTarget = LineTarget { x_start_m: 0.0, x_end_m: 2.30, z_bottom_m: 0.95, z_top_m: 1.05 };
+    pub const PAPER: LineTarget =
+        LineTarget { x_start_m: 0.0, x_end_m: 2.30, z_bottom_m: 0.95, z_top_m: 1.05 };
 
     /// The corner's world position.
     pub fn corner(&self, c: Corner) -> Vec3 {
@@ -107,6 +108,9 @@ impl LineTarget {
 
     /// True when the dimensions are finite and positive.
     pub fn is_valid(&self) -> bool {
-        self.length_m() > 0.0 && self.height_m() > 0.0 && self.length_m().is_finite() && self.height_m().is_finite()
+        self.length_m() > 0.0
+            && self.height_m() > 0.0
+            && self.length_m().is_finite()
+            && self.height_m().is_finite()
     }
 }

@@ -91,7 +91,7 @@ impl TextureStack {
 /// Four frames' worth of standard-normal noise, fixed for the renderer (per-frame windows at random offsets).
 fn noise_buffer(per_frame: usize) -> Vec<i8> {
     let table = NormalTable::new();
-    let mut s = 0x5EED_0F_u64;
+    let mut s = 0x005E_ED0F_u64;
     let n = 4 * per_frame + 4096;
     let mut out = Vec::with_capacity(n);
     while out.len() < n {
@@ -123,8 +123,10 @@ fn floor_small(v: f32) -> i32 {
     ((v - 0.5 + MAGIC_FLOOR).to_bits() & 0x007F_FFFF) as i32 - (1 << 22)
 }
 
-/// Clamps to `0..=255` and rounds to the nearest grey level (ties to even).
+/// Clamps to `0..=255` and rounds to the nearest grey level (ties to even). `max` first, so NaN gives 0
+/// (`clamp` would keep the NaN).
 #[inline(always)]
+#[allow(clippy::manual_clamp)]
 fn quantise(v: f32) -> u8 {
     (v.max(0.0).min(255.0) + MAGIC).to_bits() as u8
 }
@@ -173,8 +175,22 @@ impl ForwardRenderer {
             floor_albedo: sc.floor_albedo_rgb.map(|v| v as f32),
             exposure: c.exposure as f32,
             stack: TextureStack::new(
-                &Texture::bake(TextureKind::Plaster, sc.wall_texture_contrast, seed, [x0, 0.0], [xs, 3.0], TEXEL_M),
-                &Texture::bake(TextureKind::Concrete, sc.floor_texture_contrast, seed ^ 0xF100, [x0, 0.0], [xs, 4.0], TEXEL_M),
+                &Texture::bake(
+                    TextureKind::Plaster,
+                    sc.wall_texture_contrast,
+                    seed,
+                    [x0, 0.0],
+                    [xs, 3.0],
+                    TEXEL_M,
+                ),
+                &Texture::bake(
+                    TextureKind::Concrete,
+                    sc.floor_texture_contrast,
+                    seed ^ 0xF100,
+                    [x0, 0.0],
+                    [xs, 4.0],
+                    TEXEL_M,
+                ),
                 x0,
             ),
             noise: noise_buffer(3 * c.width_px as usize * c.height_px as usize),
@@ -296,7 +312,9 @@ impl ForwardRenderer {
             // Pass 4: noise and quantisation per channel (vectorisable), then interleave.
             if blur {
                 let out = &mut linear[3 * v * w..3 * (v + 1) * w];
-                for (((o, r), g), b) in out.chunks_exact_mut(3).zip(&planes[0]).zip(&planes[1]).zip(&planes[2]) {
+                for (((o, r), g), b) in
+                    out.chunks_exact_mut(3).zip(&planes[0]).zip(&planes[1]).zip(&planes[2])
+                {
                     o.copy_from_slice(&[*r, *g, *b]);
                 }
             } else {
@@ -307,7 +325,9 @@ impl ForwardRenderer {
                     }
                 }
                 let px_row = &mut img.data[3 * v * w..3 * (v + 1) * w];
-                for (((px, r), g), b) in px_row.chunks_exact_mut(3).zip(&qplanes[0]).zip(&qplanes[1]).zip(&qplanes[2]) {
+                for (((px, r), g), b) in
+                    px_row.chunks_exact_mut(3).zip(&qplanes[0]).zip(&qplanes[1]).zip(&qplanes[2])
+                {
                     px.copy_from_slice(&[*r, *g, *b]);
                 }
             }
@@ -356,8 +376,10 @@ impl ForwardRenderer {
         if clipped.len() < 3 {
             return None;
         }
-        let px: Vec<[f64; 2]> =
-            clipped.iter().map(|p| [self.fx * p[0] / p[2] + self.cx, self.fy * p[1] / p[2] + self.cy]).collect();
+        let px: Vec<[f64; 2]> = clipped
+            .iter()
+            .map(|p| [self.fx * p[0] / p[2] + self.cx, self.fy * p[1] / p[2] + self.cy])
+            .collect();
         Some(Poly::new(&px))
     }
 }
@@ -411,7 +433,16 @@ mod tests {
             assert!(d == 0 || d == 1, "{v}");
             assert_eq!(floor_f(v), floor_small(v) as f32);
         }
-        for &(v, q) in &[(-3.0f32, 0u8), (0.4, 0), (0.6, 1), (1.5, 2), (2.5, 2), (254.6, 255), (300.0, 255), (f32::NAN, 0)] {
+        for &(v, q) in &[
+            (-3.0f32, 0u8),
+            (0.4, 0),
+            (0.6, 1),
+            (1.5, 2),
+            (2.5, 2),
+            (254.6, 255),
+            (300.0, 255),
+            (f32::NAN, 0),
+        ] {
             assert_eq!(quantise(v), q, "{v}");
         }
     }

@@ -14,7 +14,9 @@ pub struct Texture {
 }
 
 fn lattice(ix: i64, iy: i64, seed: u64) -> f32 {
-    let mut s = seed ^ (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    let mut s = seed
+        ^ (ix as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (iy as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
     let h = splitmix64(&mut s);
     ((h >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
 }
@@ -42,7 +44,14 @@ pub enum TextureKind {
 impl Texture {
     /// Bakes a texture covering `[origin, origin + size_m]` with square texels of `texel_m`.
     /// `contrast` is the relative amplitude (0 gives a uniform texture).
-    pub fn bake(kind: TextureKind, contrast: f64, seed: u64, origin: [f64; 2], size_m: [f64; 2], texel_m: f64) -> Self {
+    pub fn bake(
+        kind: TextureKind,
+        contrast: f64,
+        seed: u64,
+        origin: [f64; 2],
+        size_m: [f64; 2],
+        texel_m: f64,
+    ) -> Self {
         let width = (size_m[0] / texel_m).ceil().max(1.0) as usize;
         let height = (size_m[1] / texel_m).ceil().max(1.0) as usize;
         let mut data = vec![1.0f32; width * height];
@@ -53,7 +62,8 @@ impl Texture {
             };
             for j in 0..height {
                 for i in 0..width {
-                    let (x, y) = (origin[0] + (i as f64 + 0.5) * texel_m, origin[1] + (j as f64 + 0.5) * texel_m);
+                    let (x, y) =
+                        (origin[0] + (i as f64 + 0.5) * texel_m, origin[1] + (j as f64 + 0.5) * texel_m);
                     let mut v = 0.0f32;
                     for (k, &(cell, amp)) in octaves.iter().enumerate() {
                         v += amp * value_noise(x, y, cell, seed.wrapping_add(k as u64 * 7919));
@@ -62,9 +72,9 @@ impl Texture {
                         // Speckles: sparse texels much darker or lighter.
                         let mut s = seed ^ ((i as u64) << 32 | j as u64).wrapping_mul(0xD6E8_FEB8_6659_FD93);
                         let h = splitmix64(&mut s);
-                        if h % 97 == 0 {
+                        if h.is_multiple_of(97) {
                             v -= 1.2;
-                        } else if h % 89 == 0 {
+                        } else if h.is_multiple_of(89) {
                             v += 0.9;
                         }
                     }
@@ -97,8 +107,10 @@ impl Texture {
     #[inline(always)]
     pub fn sample(&self, a: f32, b: f32) -> f32 {
         // Saturating float-to-int casts, then clamps: no branches, no f64.
-        let i = (((a - self.origin_f32[0]) * self.inv_texel_f32) as i32).clamp(0, self.width as i32 - 1) as usize;
-        let j = (((b - self.origin_f32[1]) * self.inv_texel_f32) as i32).clamp(0, self.height as i32 - 1) as usize;
+        let i =
+            (((a - self.origin_f32[0]) * self.inv_texel_f32) as i32).clamp(0, self.width as i32 - 1) as usize;
+        let j = (((b - self.origin_f32[1]) * self.inv_texel_f32) as i32).clamp(0, self.height as i32 - 1)
+            as usize;
         self.data[j * self.width + i]
     }
 
