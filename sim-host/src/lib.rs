@@ -3,9 +3,12 @@
 #![warn(missing_docs)]
 
 pub mod imageio;
+pub mod model;
 pub mod render;
 pub mod rng;
 pub mod scenario;
+pub mod sensors;
+pub mod sil;
 pub mod vision;
 
 pub use scenario::Scenario;

@@ -6,6 +6,10 @@ use geometry::frames::BODY_FROM_FORWARD_CAMERA;
 use geometry::{Mat3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use control_core::params::{
+    ControlGains, EstimatorParams, FailsafeParams, FlightParams, TrajectoryParams, VehicleParams,
+};
+use flight_core::{FlightConfig, VisionConfig};
 use vision_core::{CameraModel, CameraMount, Distortion, LineTarget};
 
 /// The built-in scenarios: `(name, TOML text)`.
@@ -137,6 +141,140 @@ pub struct ForwardCameraConfig {
     pub blur_sigma_px: f64,
     /// Exposure gain.
     pub exposure: f64,
+    /// Frame rate (Hz).
+    #[serde(default = "default_camera_rate")]
+    pub rate_hz: f64,
+    /// Delay from capture to the measurement reaching the vehicle: processing and radio (s).
+    #[serde(default = "default_camera_latency")]
+    pub latency_s: f64,
+    /// Uniform jitter added to the latency, +- (s).
+    #[serde(default)]
+    pub latency_jitter_s: f64,
+    /// Edge noise of the `analytic` camera mode (px, 1 sigma per edge point).
+    #[serde(default = "default_analytic_noise")]
+    pub analytic_noise_px: f64,
+}
+
+fn default_camera_rate() -> f64 {
+    30.0
+}
+fn default_camera_latency() -> f64 {
+    0.05
+}
+fn default_analytic_noise() -> f64 {
+    0.15
+}
+
+/// Simulator-only physics, beyond what the flight code knows.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct ModelConfig {
+    /// First-order motor time constant (s).
+    pub motor_time_constant_s: f64,
+    /// Linear translational drag (N per m/s); 0 gives the paper's model.
+    pub linear_drag_n_s_per_m: f64,
+    /// Fixed physics step (s).
+    pub physics_step_s: f64,
+    /// Where the vehicle rests at the start (world, m); also the flight code's home.
+    pub start_position_m: [f64; 3],
+    /// Heading at the start (deg, from facing the wall).
+    pub start_yaw_deg: f64,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        Self {
+            motor_time_constant_s: 0.02,
+            linear_drag_n_s_per_m: 0.0,
+            physics_step_s: 0.001,
+            start_position_m: [0.0, 1.30, 0.06],
+            start_yaw_deg: 0.0,
+        }
+    }
+}
+
+/// The IMU and magnetometer.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct ImuConfig {
+    /// Sample rate (Hz); a whole number of physics steps.
+    pub rate_hz: f64,
+    /// Gyro white-noise density (rad/s/sqrt(Hz)).
+    pub gyro_noise_density: f64,
+    /// Accelerometer white-noise density (m/s^2/sqrt(Hz)).
+    pub accel_noise_density: f64,
+    /// Standard deviation of the constant gyro bias drawn per run (rad/s).
+    pub gyro_bias_sigma_rad_s: f64,
+    /// Standard deviation of the constant accelerometer bias drawn per run (m/s^2).
+    pub accel_bias_sigma_m_s2: f64,
+    /// Magnetometer rate (Hz).
+    pub mag_rate_hz: f64,
+    /// Magnetometer noise relative to the field strength (1 sigma).
+    pub mag_noise_rel: f64,
+    /// Magnetic field in the world frame (gauss).
+    pub mag_field_world: [f64; 3],
+}
+
+impl Default for ImuConfig {
+    fn default() -> Self {
+        Self {
+            rate_hz: 1000.0,
+            gyro_noise_density: 1.0e-3,
+            accel_noise_density: 0.02,
+            gyro_bias_sigma_rad_s: 0.01,
+            accel_bias_sigma_m_s2: 0.03,
+            mag_rate_hz: 50.0,
+            mag_noise_rel: 0.01,
+            mag_field_world: [0.2, -0.05, -0.4],
+        }
+    }
+}
+
+/// The ground station's radio link.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct LinkConfig {
+    /// Delay of operator commands and heartbeats (s).
+    pub latency_s: f64,
+    /// Heartbeat rate (Hz).
+    pub heartbeat_hz: f64,
+}
+
+impl Default for LinkConfig {
+    fn default() -> Self {
+        Self { latency_s: 0.02, heartbeat_hz: 10.0 }
+    }
+}
+
+/// The operator's script and the run's limits.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct MissionConfig {
+    /// Control rate (Hz); a whole number of physics steps.
+    pub control_rate_hz: f64,
+    /// When the operator arms (s).
+    pub arm_at_s: f64,
+    /// When the operator commands the take-off (s).
+    pub takeoff_at_s: f64,
+    /// How long after the vehicle reports hovering the operator starts the sweep (s).
+    pub track_after_hover_s: f64,
+    /// Land when the sweep is done.
+    pub land_when_done: bool,
+    /// Longest run (s); `fly --duration` overrides it.
+    pub max_duration_s: f64,
+}
+
+impl Default for MissionConfig {
+    fn default() -> Self {
+        Self {
+            control_rate_hz: 500.0,
+            arm_at_s: 1.0,
+            takeoff_at_s: 1.5,
+            track_after_hover_s: 1.0,
+            land_when_done: true,
+            max_duration_s: 120.0,
+        }
+    }
 }
 
 /// A whole scenario.
@@ -152,6 +290,33 @@ pub struct Scenario {
     pub scene: SceneConfig,
     /// The forward camera.
     pub forward_camera: ForwardCameraConfig,
+    /// The vehicle (shared by the model and the flight code).
+    #[serde(default)]
+    pub vehicle: VehicleParams,
+    /// Simulator-only physics.
+    #[serde(default)]
+    pub model: ModelConfig,
+    /// IMU and magnetometer.
+    #[serde(default)]
+    pub imu: ImuConfig,
+    /// Radio link.
+    #[serde(default)]
+    pub link: LinkConfig,
+    /// Control gains.
+    #[serde(default)]
+    pub gains: ControlGains,
+    /// State estimator.
+    #[serde(default)]
+    pub estimator: EstimatorParams,
+    /// Mission.
+    #[serde(default)]
+    pub trajectory: TrajectoryParams,
+    /// Failsafes.
+    #[serde(default)]
+    pub failsafe: FailsafeParams,
+    /// Operator script and run limits.
+    #[serde(default)]
+    pub mission: MissionConfig,
 }
 
 fn check(ok: bool, field: &str, what: &str) -> Result<()> {
@@ -285,7 +450,82 @@ impl Scenario {
             "must lie in [0, 5]",
         )?;
         check(c.exposure.is_finite() && c.exposure > 0.0, "forward_camera.exposure", "must be positive")?;
+        check(c.rate_hz.is_finite() && c.rate_hz > 0.0 && c.rate_hz <= 200.0, "forward_camera.rate_hz", "must lie in (0, 200] Hz")?;
+        check(c.latency_s.is_finite() && (0.0..=0.2).contains(&c.latency_s), "forward_camera.latency_s", "must lie in [0, 0.2] s (the estimator keeps 0.25 s)")?;
+        check(
+            c.latency_jitter_s.is_finite() && c.latency_jitter_s >= 0.0 && c.latency_jitter_s <= c.latency_s,
+            "forward_camera.latency_jitter_s",
+            "must lie in [0, latency_s]",
+        )?;
+        check(c.analytic_noise_px.is_finite() && c.analytic_noise_px >= 0.0, "forward_camera.analytic_noise_px", "must be >= 0")?;
+        let m = &self.model;
+        check(m.motor_time_constant_s.is_finite() && m.motor_time_constant_s > 0.0, "model.motor_time_constant_s", "must be positive")?;
+        check(m.linear_drag_n_s_per_m.is_finite() && m.linear_drag_n_s_per_m >= 0.0, "model.linear_drag_n_s_per_m", "must be >= 0")?;
+        check(
+            m.physics_step_s.is_finite() && m.physics_step_s > 0.0 && m.physics_step_s <= 0.001,
+            "model.physics_step_s",
+            "must lie in (0, 0.001] s",
+        )?;
+        check(finite(&m.start_position_m), "model.start_position_m", "must be finite")?;
+        check(m.start_position_m[1] > 0.2, "model.start_position_m", "must be at least 0.2 m from the wall (y > 0.2)")?;
+        check(m.start_yaw_deg.is_finite() && m.start_yaw_deg.abs() <= 45.0, "model.start_yaw_deg", "must lie within +-45 deg")?;
+        let steps_per = |hz: f64| 1.0 / (hz * m.physics_step_s);
+        let whole = |x: f64| (x - x.round()).abs() < 1e-6 && x >= 1.0;
+        let i = &self.imu;
+        check(i.rate_hz.is_finite() && whole(steps_per(i.rate_hz)), "imu.rate_hz", "must divide the physics rate")?;
+        for (name, v) in [
+            ("imu.gyro_noise_density", i.gyro_noise_density),
+            ("imu.accel_noise_density", i.accel_noise_density),
+            ("imu.gyro_bias_sigma_rad_s", i.gyro_bias_sigma_rad_s),
+            ("imu.accel_bias_sigma_m_s2", i.accel_bias_sigma_m_s2),
+            ("imu.mag_noise_rel", i.mag_noise_rel),
+        ] {
+            check(v.is_finite() && v >= 0.0, name, "must be >= 0")?;
+        }
+        check(i.mag_rate_hz.is_finite() && i.mag_rate_hz > 0.0 && i.mag_rate_hz <= i.rate_hz, "imu.mag_rate_hz", "must lie in (0, imu.rate_hz]")?;
+        check(finite(&i.mag_field_world) && i.mag_field_world.iter().any(|v| *v != 0.0), "imu.mag_field_world", "must be finite and non-zero")?;
+        let l = &self.link;
+        check(l.latency_s.is_finite() && (0.0..=0.5).contains(&l.latency_s), "link.latency_s", "must lie in [0, 0.5] s")?;
+        check(l.heartbeat_hz.is_finite() && l.heartbeat_hz > 0.0, "link.heartbeat_hz", "must be positive")?;
+        let mi = &self.mission;
+        check(mi.control_rate_hz.is_finite() && whole(steps_per(mi.control_rate_hz)), "mission.control_rate_hz", "must divide the physics rate")?;
+        check(
+            mi.control_rate_hz >= 100.0 && mi.control_rate_hz <= i.rate_hz,
+            "mission.control_rate_hz",
+            "must lie in [100 Hz, imu.rate_hz]",
+        )?;
+        for (name, v) in [("mission.arm_at_s", mi.arm_at_s), ("mission.takeoff_at_s", mi.takeoff_at_s), ("mission.track_after_hover_s", mi.track_after_hover_s)] {
+            check(v.is_finite() && v >= 0.0, name, "must be >= 0")?;
+        }
+        check(mi.takeoff_at_s >= mi.arm_at_s, "mission.takeoff_at_s", "must not come before arm_at_s")?;
+        check(mi.max_duration_s.is_finite() && mi.max_duration_s > 0.0, "mission.max_duration_s", "must be positive")?;
+        self.flight_params().validate().map_err(|e| anyhow::anyhow!("invalid value of `{}`: {}", e.field, e.problem))?;
         Ok(())
+    }
+
+    /// The flight code's parameters.
+    pub fn flight_params(&self) -> FlightParams {
+        FlightParams {
+            vehicle: self.vehicle,
+            gains: self.gains,
+            estimator: self.estimator,
+            trajectory: self.trajectory,
+            failsafe: self.failsafe,
+            home_m: self.model.start_position_m.map(|v| v as f32),
+        }
+    }
+
+    /// The flight stack's configuration.
+    pub fn flight_config(&self) -> FlightConfig {
+        FlightConfig {
+            control: self.flight_params(),
+            vision: VisionConfig {
+                camera: self.forward_camera_model(),
+                target: self.line_target(),
+                mount: self.forward_camera_mount(),
+                ..VisionConfig::default()
+            },
+        }
     }
 
     /// The line's geometry for vision-core.

@@ -189,6 +189,8 @@ pub struct PoseSolution {
     pub attitude: Attitude,
     /// Standard deviation of the camera position (m), from the Gauss-Newton covariance.
     pub position_std_m: Vec3,
+    /// Standard deviation of the yaw (rad), from the same covariance.
+    pub yaw_std_rad: f32,
     /// RMS distance of the edge points from the projected model edges (px).
     pub reprojection_rms_px: f32,
     /// Number of real corners (corners of the ends in view).
@@ -436,8 +438,9 @@ impl Problem {
         (r_cw.orthonormalized().unwrap_or(r_cw), t, it)
     }
 
-    /// Covariance (in the parameters' units) of the camera centre at a pose; `None` when singular.
-    fn center_covariance(&self, r_cw: &Mat3, t: Vec3) -> Option<[[f32; 3]; 3]> {
+    /// Covariance of the camera centre at a pose and the variance of its yaw (rotation about the world
+    /// vertical); `None` when singular.
+    fn center_covariance(&self, r_cw: &Mat3, t: Vec3) -> Option<([[f32; 3]; 3], f32)> {
         let np = self.n_params();
         let (mut h, _) = self.normal_equations(r_cw, t);
         let scale = jacobi_scale(&h, np);
@@ -475,7 +478,15 @@ impl Problem {
                 *cij = s;
             }
         }
-        Some(cov)
+        // Yaw: the rotation parameters are camera-frame; the world vertical in camera axes is R_CW z.
+        let a = r_cw.col(2);
+        let mut yaw_var = 0.0f32;
+        for i in 0..3 {
+            for j in 0..3 {
+                yaw_var += a[i] * inv[i][j] * scale[i] * scale[j] * a[j];
+            }
+        }
+        Some((cov, yaw_var))
     }
 }
 
@@ -779,9 +790,9 @@ pub fn solve_pose(
     }
     let std = |v: f32| if v.is_finite() && v >= 0.0 { libm::sqrtf(v) } else { f32::INFINITY };
     let cov = problem.center_covariance(&r, t);
-    let mut position_std_m = match cov {
-        Some(c) => Vec3::new(std(c[0][0]), std(c[1][1]), std(c[2][2])),
-        None => Vec3::new(f32::INFINITY, f32::INFINITY, f32::INFINITY),
+    let (mut position_std_m, yaw_std_rad) = match cov {
+        Some((c, yv)) => (Vec3::new(std(c[0][0]), std(c[1][1]), std(c[2][2])), std(yv)),
+        None => (Vec3::new(f32::INFINITY, f32::INFINITY, f32::INFINITY), f32::INFINITY),
     };
     if fix_x {
         position_std_m.x = f32::INFINITY;
@@ -801,6 +812,7 @@ pub fn solve_pose(
         camera_from_world: r,
         attitude: Attitude::from_world_from_body(&r_wb),
         position_std_m,
+        yaw_std_rad,
         reprojection_rms_px: rms_px,
         real_corners: obs.real_corners(),
         ambiguity_ratio,

@@ -1,0 +1,541 @@
+//! Flight control for the wall-line quadrotor, `no_std` and without allocation.
+//!
+//! Everything runs behind one function, [`ControlCore::step`], that the firmware, the simulator and log replay
+//! call with the sensor inputs of one control period (timestamps included) and that returns the rotor speed
+//! commands and a status:
+//!
+//! - [`estimator`]: an error-state Kalman filter on the IMU, corrected by delayed vision fixes, optical-flow
+//!   velocity, magnetometer heading and, on the ground, zero velocity and gravity;
+//! - [`laws`]: the paper's altitude and yaw laws (eq. 30-31) and bounded lateral and longitudinal laws
+//!   (eq. 33-34), with the traps fixed (clamped division, sums of saturations checked by Routh-Hurwitz);
+//! - [`trajectory`]: the back-and-forth sweep with the direction flag (section 5.2), take-off and landing;
+//! - [`mixer`]: thrust and torques to rotor speeds within the motor limits;
+//! - modes and failsafes (this module): arming checks, vision lost, link lost, IMU fault, tilt.
+//!
+//! Time enters only as timestamps; nothing reads a clock, logs or panics.
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
+
+pub mod estimator;
+pub mod laws;
+pub mod mixer;
+pub mod params;
+pub mod trajectory;
+
+use estimator::{BodyVelocity, Estimator, FuseOutcome, ImuSample, PositionFix, StateEstimate};
+use geometry::Vec3;
+use laws::{Controller, LawStatus, Setpoint};
+use mixer::MixerOutput;
+use params::FlightParams;
+use trajectory::{Move, Sweep};
+
+/// Standard gravity (m/s^2).
+pub const GRAVITY: f32 = 9.80665;
+
+/// An operator command (from the ground station over the radio link).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Command {
+    /// Arm (motors to idle); refused unless disarmed, level, sensors healthy.
+    Arm,
+    /// Stop the motors, at once, in any mode.
+    Disarm,
+    /// Climb to the mission altitude above the current position.
+    TakeOff,
+    /// Start the sweep.
+    StartTracking,
+    /// Stop the sweep and hover where the reference is.
+    StopTracking,
+    /// Descend and disarm on touchdown.
+    Land,
+}
+
+/// Flight mode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FlightMode {
+    /// Motors off.
+    Disarmed,
+    /// On the ground, motors at idle.
+    Armed,
+    /// Climbing to the mission altitude.
+    TakeOff,
+    /// Holding a point.
+    Hover,
+    /// Sweeping along the line.
+    Tracking,
+    /// Failsafe: no vision; holding attitude and altitude on the IMU (and flow).
+    VisionHold,
+    /// Descending to touchdown.
+    Landing,
+    /// Motors off after a fault (IMU, estimator, excessive tilt).
+    Emergency,
+}
+
+impl FlightMode {
+    /// Whether the vehicle is (meant to be) flying.
+    pub fn airborne(self) -> bool {
+        matches!(self, FlightMode::TakeOff | FlightMode::Hover | FlightMode::Tracking | FlightMode::VisionHold | FlightMode::Landing)
+    }
+}
+
+/// Why a failsafe acted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Failsafe {
+    /// Vision fixes stale: holding on the IMU.
+    VisionLost,
+    /// Vision lost for too long: landing.
+    VisionLostLanding,
+    /// No message from the ground station: landing.
+    LinkLost,
+    /// IMU silent or non-finite: motors off.
+    ImuFault,
+    /// Estimator diverged (non-finite): motors off.
+    EstimatorFault,
+    /// Tilt beyond the crash limit: motors off.
+    ExcessiveTilt,
+}
+
+/// Why a command was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Refusal {
+    /// Not possible in the current mode.
+    WrongMode,
+    /// Arming: tilted beyond the arming limit.
+    NotLevel,
+    /// Arming: IMU not delivering, estimator not aligned or unhealthy.
+    SensorsUnhealthy,
+    /// Arming or take-off: no link to the ground station.
+    NoLink,
+    /// Arming after a fault: disarm first.
+    FaultLatched,
+}
+
+/// The outcome of the last command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CommandResult {
+    /// Carried out.
+    Accepted(Command),
+    /// Refused.
+    Refused(Command, Refusal),
+}
+
+/// The sensor inputs of one control period.
+#[derive(Clone, Copy, Debug)]
+pub struct ControlInputs<'a> {
+    /// Time of this step (us, vehicle clock).
+    pub time_us: u64,
+    /// IMU samples since the previous step, oldest first.
+    pub imu: &'a [ImuSample],
+    /// Magnetometer reading (body frame), when a new one arrived.
+    pub mag: Option<Vec3>,
+    /// Vision fix solved this step, when a frame arrived.
+    pub fix: Option<PositionFix>,
+    /// Optical-flow velocity, when one arrived.
+    pub flow: Option<BodyVelocity>,
+    /// Operator command, when one arrived.
+    pub command: Option<Command>,
+    /// Whether any message from the ground station arrived this step (link alive).
+    pub link_message: bool,
+}
+
+/// Status of the flight code.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Status {
+    /// Mode.
+    pub mode: FlightMode,
+    /// The active (or last) failsafe.
+    pub failsafe: Option<Failsafe>,
+    /// The last command's outcome.
+    pub last_command: Option<CommandResult>,
+    /// Age of the last accepted vision fix (s); infinite before the first.
+    pub fix_age_s: f32,
+    /// Outcome of this step's fix, if any.
+    pub fix_outcome: Option<FuseOutcome>,
+    /// Sweep passes completed.
+    pub passes_done: u16,
+    /// Sweep direction flag (toward the far end of the range).
+    pub sweep_forward: bool,
+    /// What the laws did.
+    pub law: LawStatus,
+    /// What the mixer had to give.
+    pub mixer: MixerOutput,
+    /// IMU samples rejected this step (non-finite or out of order).
+    pub imu_rejected: u8,
+}
+
+/// What one step returns.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ControlOutputs {
+    /// Rotor speed commands M1..M4 (rad/s); zeros when the motors are off.
+    pub motors_rad_s: [f32; 4],
+    /// Status.
+    pub status: Status,
+    /// State estimate after this step.
+    pub estimate: StateEstimate,
+    /// Reference of this step.
+    pub setpoint: Setpoint,
+}
+
+/// The flight code.
+#[derive(Clone)]
+pub struct ControlCore {
+    params: FlightParams,
+    estimator: Estimator,
+    controller: Controller,
+    mode: FlightMode,
+    failsafe: Option<Failsafe>,
+    last_command: Option<CommandResult>,
+    sweep: Option<Sweep>,
+    vertical: Option<(Move, u64)>,
+    hold: Vec3,
+    yaw_d: f32,
+    last_step_us: Option<u64>,
+    last_imu_us: Option<u64>,
+    first_imu_us: Option<u64>,
+    last_fix_us: Option<u64>,
+    last_link_us: Option<u64>,
+    airborne_since_us: u64,
+    hold_since_us: u64,
+    touchdown_since_us: Option<u64>,
+    settled_since_us: Option<u64>,
+    motors: [f32; 4],
+    fault_latched: bool,
+}
+
+impl ControlCore {
+    /// Flight code with validated parameters (see [`FlightParams::validate`]).
+    pub fn new(params: FlightParams) -> Result<Self, params::ParamError> {
+        params.validate()?;
+        let home = Vec3::from_array(params.home_m);
+        Ok(Self {
+            params,
+            estimator: Estimator::new(params.estimator, home),
+            controller: Controller::new(params.gains, params.vehicle),
+            mode: FlightMode::Disarmed,
+            failsafe: None,
+            last_command: None,
+            sweep: None,
+            vertical: None,
+            hold: home,
+            yaw_d: params.trajectory.yaw_d_rad,
+            last_step_us: None,
+            last_imu_us: None,
+            first_imu_us: None,
+            last_fix_us: None,
+            last_link_us: None,
+            airborne_since_us: 0,
+            hold_since_us: 0,
+            touchdown_since_us: None,
+            settled_since_us: None,
+            motors: [0.0; 4],
+            fault_latched: false,
+        })
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &FlightParams {
+        &self.params
+    }
+
+    /// The current mode.
+    pub fn mode(&self) -> FlightMode {
+        self.mode
+    }
+
+    /// The estimator (read-only), e.g. for the attitude at a frame's capture time.
+    pub fn estimator(&self) -> &Estimator {
+        &self.estimator
+    }
+
+    fn motors_off(&mut self, mode: FlightMode) {
+        self.mode = mode;
+        self.sweep = None;
+        self.vertical = None;
+        self.controller.reset();
+    }
+
+    fn start_vertical(&mut self, from: f32, to: f32, speed: f32, now: u64) {
+        self.vertical = Some((Move::new(from, to, speed, 1.0), now));
+    }
+
+    fn handle_command(&mut self, cmd: Command, now: u64, est: &StateEstimate, imu_ok: bool, link_ok: bool) {
+        use FlightMode::{Armed, Disarmed, Hover, Tracking, VisionHold};
+        let t = &self.params.trajectory;
+        let result = match (cmd, self.mode) {
+            (Command::Disarm, _) => {
+                self.motors_off(Disarmed);
+                self.failsafe = None;
+                self.fault_latched = false;
+                Ok(())
+            }
+            (Command::Arm, Disarmed) => {
+                let tilt = libm::acosf(geometry::clamp_finite(
+                    libm::cosf(est.attitude.roll) * libm::cosf(est.attitude.pitch),
+                    -1.0,
+                    1.0,
+                ));
+                let aligned = self.first_imu_us.is_some_and(|f| now.saturating_sub(f) > 500_000);
+                if self.fault_latched {
+                    Err(Refusal::FaultLatched)
+                } else if !imu_ok || !aligned || !self.estimator.is_healthy() {
+                    Err(Refusal::SensorsUnhealthy)
+                } else if tilt > self.params.failsafe.max_arming_tilt_rad {
+                    Err(Refusal::NotLevel)
+                } else if !link_ok {
+                    Err(Refusal::NoLink)
+                } else {
+                    self.mode = Armed;
+                    self.controller.reset();
+                    Ok(())
+                }
+            }
+            (Command::TakeOff, Armed) => {
+                if !link_ok {
+                    Err(Refusal::NoLink)
+                } else {
+                    self.mode = FlightMode::TakeOff;
+                    self.hold = Vec3::new(est.position_m.x, est.position_m.y, t.z_d_m);
+                    self.yaw_d = t.yaw_d_rad;
+                    self.start_vertical(est.position_m.z, t.z_d_m, t.takeoff_speed_m_s, now);
+                    self.airborne_since_us = now;
+                    self.settled_since_us = None;
+                    Ok(())
+                }
+            }
+            (Command::StartTracking, Hover) => {
+                self.mode = Tracking;
+                self.sweep = Some(Sweep::new(t.x_range_m, t.speed_m_s, t.accel_m_s2, t.sweeps, self.hold.x, now));
+                Ok(())
+            }
+            (Command::StopTracking, Tracking) => {
+                self.mode = Hover;
+                self.sweep = None;
+                Ok(())
+            }
+            (Command::Land, FlightMode::TakeOff | Hover | Tracking | VisionHold) => {
+                self.begin_landing(now, est);
+                Ok(())
+            }
+            _ => Err(Refusal::WrongMode),
+        };
+        self.last_command = Some(match result {
+            Ok(()) => CommandResult::Accepted(cmd),
+            Err(r) => CommandResult::Refused(cmd, r),
+        });
+    }
+
+    fn begin_landing(&mut self, now: u64, est: &StateEstimate) {
+        let t = self.params.trajectory;
+        self.mode = FlightMode::Landing;
+        self.sweep = None;
+        self.hold.x = est.position_m.x;
+        self.hold.y = est.position_m.y;
+        // Aim below the ground so that the descent does not stop short of touchdown.
+        self.start_vertical(est.position_m.z, t.ground_height_m - 0.3, t.landing_speed_m_s, now);
+        self.touchdown_since_us = None;
+    }
+
+    /// One control period: estimation, mission, failsafes, laws, mixer.
+    pub fn step(&mut self, inp: &ControlInputs<'_>) -> ControlOutputs {
+        let now = inp.time_us;
+        let dt = self.last_step_us.map_or(0.0, |l| (now.saturating_sub(l) as f32 * 1e-6).min(0.05));
+        self.last_step_us = Some(now);
+        let fs = self.params.failsafe;
+        let traj = self.params.trajectory;
+
+        // Estimation: IMU prediction, covariance, measurements.
+        let mut imu_rejected = 0u8;
+        let mut accel_sum = Vec3::ZERO;
+        let mut n_ok = 0u32;
+        for s in inp.imu {
+            if self.estimator.predict(s) {
+                self.last_imu_us = Some(s.time_us);
+                self.first_imu_us.get_or_insert(s.time_us);
+                accel_sum += Vec3::from_array(s.accel_m_s2);
+                n_ok += 1;
+            } else {
+                imu_rejected = imu_rejected.saturating_add(1);
+            }
+        }
+        self.estimator.propagate_covariance(now);
+        let imu_ok = self.last_imu_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.imu_timeout_s);
+        if matches!(self.mode, FlightMode::Disarmed | FlightMode::Armed) && n_ok > 0 {
+            self.estimator.fuse_ground(accel_sum * (1.0 / n_ok as f32), traj.ground_height_m);
+        }
+        if let Some(m) = inp.mag {
+            self.estimator.fuse_mag(m);
+        }
+        let mut fix_outcome = None;
+        if let Some(fix) = inp.fix {
+            let o = self.estimator.fuse_fix(&fix, now);
+            if matches!(o, FuseOutcome::Accepted | FuseOutcome::Initialised) {
+                self.last_fix_us = Some(now);
+            }
+            fix_outcome = Some(o);
+        }
+        if let Some(f) = inp.flow {
+            self.estimator.fuse_body_velocity(&f, now);
+        }
+        if inp.link_message {
+            self.last_link_us = Some(now);
+        }
+        let link_ok = self.last_link_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.link_land_after_s);
+        let est = self.estimator.estimate(now);
+
+        // Faults: motors off.
+        let tilt = libm::acosf(geometry::clamp_finite(
+            libm::cosf(est.attitude.roll) * libm::cosf(est.attitude.pitch),
+            -1.0,
+            1.0,
+        ));
+        let fault = if self.last_imu_us.is_some() && !imu_ok && self.mode != FlightMode::Disarmed {
+            Some(Failsafe::ImuFault)
+        } else if !self.estimator.is_healthy() {
+            Some(Failsafe::EstimatorFault)
+        } else if self.mode.airborne() && tilt > fs.crash_tilt_rad {
+            Some(Failsafe::ExcessiveTilt)
+        } else {
+            None
+        };
+        if let Some(f) = fault
+            && self.mode != FlightMode::Emergency
+            && (self.mode != FlightMode::Disarmed || f == Failsafe::EstimatorFault)
+        {
+            self.failsafe = Some(f);
+            self.fault_latched = true;
+            self.motors_off(FlightMode::Emergency);
+        }
+
+        if let Some(cmd) = inp.command {
+            self.handle_command(cmd, now, &est, imu_ok, link_ok);
+        }
+
+        // Failsafes of the airborne modes.
+        if self.mode.airborne() {
+            let since = self.last_fix_us.unwrap_or(0).max(self.airborne_since_us);
+            let fix_age = now.saturating_sub(since) as f32 * 1e-6;
+            if !link_ok && self.mode != FlightMode::Landing {
+                self.failsafe = Some(Failsafe::LinkLost);
+                self.begin_landing(now, &est);
+            } else if matches!(self.mode, FlightMode::Hover | FlightMode::Tracking | FlightMode::TakeOff)
+                && fix_age > fs.vision_hold_after_s
+            {
+                self.failsafe = Some(Failsafe::VisionLost);
+                self.mode = FlightMode::VisionHold;
+                self.sweep = None;
+                self.hold_since_us = now;
+                self.hold = Vec3::new(est.position_m.x, est.position_m.y, self.hold.z.max(est.position_m.z));
+                self.vertical = None;
+            } else if self.mode == FlightMode::VisionHold {
+                if fix_age <= fs.vision_hold_after_s {
+                    // Vision is back: hover where we are.
+                    self.mode = FlightMode::Hover;
+                    self.hold = Vec3::new(est.position_m.x, est.position_m.y, self.hold.z);
+                } else if now.saturating_sub(self.hold_since_us) as f32 * 1e-6 > fs.vision_land_after_s {
+                    self.failsafe = Some(Failsafe::VisionLostLanding);
+                    self.begin_landing(now, &est);
+                }
+            }
+        }
+
+        // Mission progress and the reference.
+        let mut sp = Setpoint { position_m: self.hold, yaw_rad: self.yaw_d, ..Setpoint::default() };
+        match self.mode {
+            FlightMode::TakeOff | FlightMode::Landing => {
+                if let Some((mv, t0)) = self.vertical {
+                    let (z, vz, az) = mv.eval(now.saturating_sub(t0) as f32 * 1e-6);
+                    sp.position_m.z = z;
+                    sp.velocity_m_s.z = vz;
+                    sp.accel_m_s2.z = az;
+                }
+                if self.mode == FlightMode::TakeOff {
+                    let done = self.vertical.is_some_and(|(mv, t0)| now.saturating_sub(t0) as f32 * 1e-6 >= mv.duration_s());
+                    let close = (est.position_m.z - traj.z_d_m).abs() < 0.05;
+                    if done && close {
+                        let since = *self.settled_since_us.get_or_insert(now);
+                        if now.saturating_sub(since) as f32 * 1e-6 >= traj.settle_s {
+                            self.mode = FlightMode::Hover;
+                            self.vertical = None;
+                        }
+                    } else {
+                        self.settled_since_us = None;
+                    }
+                } else {
+                    // Touchdown: near the ground and no longer descending although the reference keeps going
+                    // down, for half a second. (Vision usually loses the line in the last decimetres, so the
+                    // height is the IMU's; the margin covers its drift.)
+                    let down = est.position_m.z < traj.ground_height_m + 0.15 && est.velocity_m_s.z.abs() < 0.1;
+                    if down {
+                        let since = *self.touchdown_since_us.get_or_insert(now);
+                        if now.saturating_sub(since) > 500_000 {
+                            self.motors_off(FlightMode::Disarmed);
+                        }
+                    } else {
+                        self.touchdown_since_us = None;
+                    }
+                }
+            }
+            FlightMode::Tracking => {
+                if let Some(sw) = self.sweep.as_mut() {
+                    let (x, vx, ax) = sw.update(now);
+                    sp.position_m = Vec3::new(x, traj.y_d_m, traj.z_d_m);
+                    sp.velocity_m_s.x = vx;
+                    sp.accel_m_s2.x = ax;
+                    self.hold = sp.position_m;
+                    if sw.finished() {
+                        self.mode = FlightMode::Hover;
+                    }
+                }
+            }
+            FlightMode::VisionHold => {
+                // Hold attitude and altitude: damp the horizontal velocity, no position reference.
+                sp.position_m.x = est.position_m.x;
+                sp.position_m.y = est.position_m.y;
+            }
+            _ => {}
+        }
+
+        // Laws and mixer.
+        let integrate = matches!(self.mode, FlightMode::Hover | FlightMode::Tracking);
+        let (demand, law) = self.controller.update(&est, &sp, dt, integrate, self.motors);
+        let mut mix = MixerOutput::default();
+        self.motors = match self.mode {
+            FlightMode::Disarmed | FlightMode::Emergency => [0.0; 4],
+            FlightMode::Armed => [self.params.vehicle.motor_speed_min_rad_s; 4],
+            _ => {
+                mix = mixer::mix(&demand, &self.params.vehicle);
+                mix.speeds_rad_s
+            }
+        };
+        let sweep = self.sweep;
+        let status = Status {
+            mode: self.mode,
+            failsafe: self.failsafe,
+            last_command: self.last_command,
+            fix_age_s: self.last_fix_us.map_or(f32::INFINITY, |t| now.saturating_sub(t) as f32 * 1e-6),
+            fix_outcome,
+            passes_done: sweep.map_or(0, |s| s.passes_done),
+            sweep_forward: sweep.is_some_and(|s| s.forward),
+            law,
+            mixer: mix,
+            imu_rejected,
+        };
+        ControlOutputs { motors_rad_s: self.motors, status, estimate: est, setpoint: sp }
+    }
+}

@@ -1,0 +1,205 @@
+//! The flight stack: the one [`FlightStack::step`] that the firmware, the simulator (software in the loop) and
+//! log replay all call.
+//!
+//! It takes one control period's inputs (IMU samples, magnetometer, the radio link's messages) and returns the
+//! rotor speed commands and a status. Vision measurements from the ground station arrive as line
+//! observations ([`protocol::VisionMeasurement`]); the stack solves each one's pose **on board** with
+//! [`vision_core::solve_pose`], taking roll and pitch from the estimator's attitude *at the frame's capture
+//! time* (kept in the estimator's history), then fuses the fix. See `docs/architecture.md` for why the solve
+//! runs on board rather than on the ground.
+//!
+//! `vision-core` and `control-core` do not depend on each other; this crate is the only place they meet.
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+
+use control_core::estimator::{ImuSample, PositionFix};
+use control_core::params::{FlightParams, ParamError};
+use control_core::{Command, ControlCore, ControlInputs, ControlOutputs};
+use geometry::Vec3;
+use protocol::{Uplink, VisionMeasurement};
+use vision_core::{AttitudeSource, CameraModel, CameraMount, LineTarget, PoseError, PoseParams, PoseSolution};
+
+/// What the on-board pose solve needs to know about the forward camera and the line.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct VisionConfig {
+    /// Intrinsics of the forward camera.
+    pub camera: CameraModel,
+    /// The painted line.
+    pub target: LineTarget,
+    /// Where the camera sits on the vehicle.
+    pub mount: CameraMount,
+    /// Pose solver options.
+    pub pose: PoseParams,
+    /// Lower bound of the attitude standard deviation given to the solver (rad).
+    pub attitude_sigma_floor_rad: f32,
+}
+
+impl Default for VisionConfig {
+    /// The paper's camera and line.
+    fn default() -> Self {
+        Self {
+            camera: CameraModel::PAPER_FORWARD,
+            target: LineTarget::PAPER,
+            mount: CameraMount::FORWARD_AT_CENTRE,
+            pose: PoseParams::default(),
+            attitude_sigma_floor_rad: 0.005,
+        }
+    }
+}
+
+/// Everything the flight stack needs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FlightConfig {
+    /// Control, estimation, mission, failsafes.
+    pub control: FlightParams,
+    /// The on-board pose solve.
+    pub vision: VisionConfig,
+}
+
+impl FlightConfig {
+    /// The paper's experiment.
+    pub fn paper() -> Self {
+        Self { control: FlightParams::paper(), vision: VisionConfig::default() }
+    }
+}
+
+/// The inputs of one control period.
+#[derive(Clone, Copy, Debug)]
+pub struct StepInput<'a> {
+    /// Time of this step (us, vehicle clock).
+    pub time_us: u64,
+    /// IMU samples since the previous step, oldest first.
+    pub imu: &'a [ImuSample],
+    /// A new magnetometer reading (body frame), if any.
+    pub mag: Option<Vec3>,
+    /// Messages received from the ground station since the previous step, in arrival order.
+    pub uplink: &'a [Uplink],
+}
+
+/// The outcome of this step's vision frame, if one arrived.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FrameOutcome {
+    /// The frame had no line.
+    NoTarget,
+    /// No attitude stored for the capture time (too old, or from the future).
+    NoAttitude,
+    /// The solver rejected the measurement.
+    Rejected(PoseError),
+    /// A pose.
+    Solved(PoseSolution),
+}
+
+/// Counters of the vision frames the stack received.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct VisionCounters {
+    /// Frames received.
+    pub frames: u32,
+    /// Frames without the line.
+    pub no_target: u32,
+    /// Frames whose pose was solved.
+    pub solved: u32,
+    /// Frames the solver rejected or could not place in time.
+    pub rejected: u32,
+}
+
+/// What one step returns.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepOutput {
+    /// Control outputs: rotor speeds, status, estimate, setpoint.
+    pub control: ControlOutputs,
+    /// This step's frame, if any (the last one when several arrived).
+    pub frame: Option<FrameOutcome>,
+    /// Vision counters since start.
+    pub vision: VisionCounters,
+}
+
+/// The flight stack.
+#[derive(Clone)]
+pub struct FlightStack {
+    control: ControlCore,
+    vision: VisionConfig,
+    counters: VisionCounters,
+}
+
+impl FlightStack {
+    /// A stack with validated parameters.
+    pub fn new(cfg: FlightConfig) -> Result<Self, ParamError> {
+        if !cfg.vision.target.is_valid() {
+            return Err(ParamError { field: "vision.target", problem: "line dimensions must be positive" });
+        }
+        if !(cfg.vision.attitude_sigma_floor_rad > 0.0) {
+            return Err(ParamError { field: "vision.attitude_sigma_floor_rad", problem: "must be positive" });
+        }
+        Ok(Self { control: ControlCore::new(cfg.control)?, vision: cfg.vision, counters: VisionCounters::default() })
+    }
+
+    /// The control core (read-only).
+    pub fn control(&self) -> &ControlCore {
+        &self.control
+    }
+
+    /// Solves a frame's pose with the estimator's attitude at its capture time.
+    fn solve(&self, m: &VisionMeasurement) -> FrameOutcome {
+        let Some(obs) = m.observation else { return FrameOutcome::NoTarget };
+        let Some(att) = self.control.estimator().attitude_at(m.capture_time_us) else {
+            return FrameOutcome::NoAttitude;
+        };
+        let est = self.control.estimator().estimate(m.capture_time_us);
+        let sigma = est.tilt_std_rad.max(self.vision.attitude_sigma_floor_rad);
+        let source = AttitudeSource::Imu { roll: att.roll, pitch: att.pitch, sigma_rad: sigma };
+        let v = &self.vision;
+        match vision_core::solve_pose(&obs, &v.camera, &v.target, &v.mount, source, &v.pose) {
+            Ok(p) => FrameOutcome::Solved(p),
+            Err(e) => FrameOutcome::Rejected(e),
+        }
+    }
+
+    /// One control period.
+    pub fn step(&mut self, inp: &StepInput<'_>) -> StepOutput {
+        let mut command: Option<Command> = None;
+        let mut fix: Option<PositionFix> = None;
+        let mut frame = None;
+        for msg in inp.uplink {
+            match msg {
+                Uplink::Command(c) => command = Some(*c),
+                Uplink::Heartbeat => {}
+                Uplink::Vision(m) => {
+                    self.counters.frames += 1;
+                    let outcome = self.solve(m);
+                    match outcome {
+                        FrameOutcome::NoTarget => self.counters.no_target += 1,
+                        FrameOutcome::NoAttitude | FrameOutcome::Rejected(_) => self.counters.rejected += 1,
+                        FrameOutcome::Solved(p) => {
+                            self.counters.solved += 1;
+                            fix = Some(PositionFix {
+                                capture_time_us: m.capture_time_us,
+                                position_m: p.vehicle_position_m,
+                                position_std_m: p.position_std_m,
+                                x_observed: p.x_observed,
+                                yaw_rad: p.attitude.yaw,
+                                yaw_std_rad: p.yaw_std_rad,
+                            });
+                        }
+                    }
+                    frame = Some(outcome);
+                }
+            }
+        }
+        let control = self.control.step(&ControlInputs {
+            time_us: inp.time_us,
+            imu: inp.imu,
+            mag: inp.mag,
+            fix,
+            flow: None,
+            command,
+            link_message: !inp.uplink.is_empty(),
+        });
+        StepOutput { control, frame, vision: self.counters }
+    }
+}

@@ -1,0 +1,74 @@
+//! The messages that cross the radio link between the ground station and the vehicle, defined once and
+//! shared by the firmware, the simulator and the log tools.
+//!
+//! - [`Uplink`]: ground station to vehicle: the forward camera's line measurement of each frame (solved into a
+//!   pose on board, with the estimator's attitude at the frame's capture time), operator commands, heartbeats.
+//! - [`Downlink`]: vehicle to ground station: telemetry and command acknowledgements.
+//!
+//! All times are microseconds on the vehicle's clock.
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+
+use control_core::estimator::StateEstimate;
+use control_core::laws::Setpoint;
+use control_core::{Command, CommandResult, Failsafe, FlightMode};
+use serde::{Deserialize, Serialize};
+use vision_core::LineObservation;
+
+/// One forward-camera frame as measured by the ground station.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct VisionMeasurement {
+    /// Capture time of the frame (mid-exposure, us).
+    pub capture_time_us: u64,
+    /// Frame counter of the camera.
+    pub frame_seq: u32,
+    /// The line's edges, or `None` when the frame had no line.
+    pub observation: Option<LineObservation>,
+}
+
+/// Ground station to vehicle.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Uplink {
+    /// A forward-camera frame's measurement.
+    Vision(VisionMeasurement),
+    /// An operator command.
+    Command(Command),
+    /// Keeps the link alive when nothing else is sent.
+    Heartbeat,
+}
+
+/// Vehicle to ground station: what the flight code is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Telemetry {
+    /// Time of the control step (us).
+    pub time_us: u64,
+    /// Mode.
+    pub mode: FlightMode,
+    /// Active or last failsafe.
+    pub failsafe: Option<Failsafe>,
+    /// State estimate.
+    pub estimate: StateEstimate,
+    /// Reference.
+    pub setpoint: Setpoint,
+    /// Rotor speed commands (rad/s).
+    pub motors_rad_s: [f32; 4],
+    /// Age of the last accepted vision fix (s).
+    pub fix_age_s: f32,
+    /// Cost of the last control step (CPU cycles or instructions; 0 when not measured).
+    pub step_cost: u32,
+}
+
+/// Vehicle to ground station.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Downlink {
+    /// Periodic telemetry.
+    Telemetry(Telemetry),
+    /// The outcome of a command.
+    CommandAck(CommandResult),
+}

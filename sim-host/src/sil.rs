@@ -1,0 +1,496 @@
+//! Software in the loop: the flight stack (the same code as the firmware) flies the simulated quadrotor.
+//!
+//! Lockstep at the physics step (1 ms by default): each step integrates the model (RK4) with the rotor
+//! commands held, samples the IMU, the magnetometer and, at the camera rate, the forward camera. The ground
+//! station measures each frame (full rendered image through vision-core's detector, or the analytic
+//! projection with edge noise) and sends the measurement over a link with latency and jitter; operator
+//! commands and heartbeats go the same way. At the control rate the flight stack's `step` runs with the IMU
+//! samples and the messages delivered since the last step. A run is a pure function of
+//! (scenario, seed, camera mode).
+use crate::model::{ModelParams, Quadrotor, quat_to_mat};
+use crate::render::ForwardRenderer;
+use crate::rng::{SimRng, splitmix64};
+use crate::scenario::Scenario;
+use crate::sensors::ImuModel;
+use crate::vision::GroundVision;
+use anyhow::Result;
+use control_core::estimator::ImuSample;
+use control_core::{Command, FlightMode};
+use flight_core::{FlightStack, StepInput, StepOutput};
+use geometry::frames::Attitude;
+use geometry::{Mat3, Vec3};
+use protocol::{Uplink, VisionMeasurement};
+use std::collections::VecDeque;
+use vision_core::observation::project_observation;
+
+/// How the forward camera is simulated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CameraMode {
+    /// Rendered images through the full vision pipeline.
+    Rendered,
+    /// The line's edges projected analytically, with edge noise (fast).
+    Analytic,
+}
+
+impl CameraMode {
+    /// Name used in files and reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            CameraMode::Rendered => "rendered",
+            CameraMode::Analytic => "analytic",
+        }
+    }
+}
+
+/// One recorded instant (at the record rate).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Record {
+    /// Time (s).
+    pub t_s: f64,
+    /// True position (m).
+    pub true_p: [f64; 3],
+    /// True velocity (m/s).
+    pub true_v: [f64; 3],
+    /// True roll, pitch, yaw (rad, from facing the wall).
+    pub true_att: [f64; 3],
+    /// Estimated position (m).
+    pub est_p: [f32; 3],
+    /// Estimated velocity (m/s).
+    pub est_v: [f32; 3],
+    /// Estimated roll, pitch, yaw (rad).
+    pub est_att: [f32; 3],
+    /// Desired position (m).
+    pub des_p: [f32; 3],
+    /// Desired velocity (m/s).
+    pub des_v: [f32; 3],
+    /// Commanded rotor speeds (rad/s).
+    pub motor_cmd: [f32; 4],
+    /// Actual rotor speeds (rad/s).
+    pub motor: [f64; 4],
+    /// Flight mode.
+    pub mode: FlightMode,
+    /// Age of the last accepted vision fix (s; infinite before the first).
+    pub fix_age_s: f32,
+}
+
+/// Per-axis accumulator of squared errors.
+#[derive(Clone, Copy, Debug, Default)]
+struct Rms {
+    sum: [f64; 3],
+    n: u64,
+}
+
+impl Rms {
+    fn add(&mut self, e: [f64; 3]) {
+        for i in 0..3 {
+            self.sum[i] += e[i] * e[i];
+        }
+        self.n += 1;
+    }
+    fn get(&self) -> [f64; 3] {
+        if self.n == 0 { [f64::NAN; 3] } else { self.sum.map(|s| (s / self.n as f64).sqrt()) }
+    }
+}
+
+/// What a run measured.
+#[derive(Clone, Debug, Default)]
+pub struct RunStats {
+    /// Simulated time (s).
+    pub sim_time_s: f64,
+    /// Whether the vehicle crashed (tilt beyond 80 deg, hard touchdown, hit the wall or the floor).
+    pub crashed: bool,
+    /// Why, when it crashed.
+    pub crash_reason: Option<String>,
+    /// True minus desired position over the tracking phase, RMS per axis (m).
+    pub rms_error_m: [f64; 3],
+    /// Estimated minus true position over the tracking phase, RMS per axis (m).
+    pub estimate_rms_error_m: [f64; 3],
+    /// Largest true tilt while airborne (deg).
+    pub max_tilt_deg: f64,
+    /// Duration of the tracking phase (s).
+    pub tracking_s: f64,
+    /// Sweep passes completed.
+    pub passes_done: u16,
+    /// Forward-camera frames captured.
+    pub frames: u32,
+    /// Frames whose pose the vehicle solved.
+    pub frames_solved: u32,
+    /// Frames without the line.
+    pub frames_no_target: u32,
+    /// Frames the vehicle rejected.
+    pub frames_rejected: u32,
+    /// Failsafes that acted, in order.
+    pub failsafes: Vec<String>,
+    /// Modes visited, with the time each began (s).
+    pub modes: Vec<(f64, String)>,
+    /// Whether the run ended landed and disarmed.
+    pub landed: bool,
+    /// Fastest touchdown (m/s).
+    pub max_touchdown_speed_m_s: f64,
+}
+
+/// A software-in-the-loop run in progress.
+pub struct Sil {
+    scenario: Scenario,
+    seed: u64,
+    mode: CameraMode,
+    quad: Quadrotor,
+    stack: FlightStack,
+    imu: ImuModel,
+    renderer: Option<ForwardRenderer>,
+    vision: GroundVision,
+    link: VecDeque<(u64, Uplink)>,
+    link_rng: SimRng,
+    edge_rng: SimRng,
+    t_us: u64,
+    dt_us: u64,
+    imu_every: u64,
+    ctrl_every: u64,
+    mag_every: u64,
+    record_every: u64,
+    step_count: u64,
+    frame_index: u64,
+    next_frame_us: u64,
+    next_heartbeat_us: u64,
+    pending_imu: Vec<ImuSample>,
+    pending_mag: Option<Vec3>,
+    motor_cmd: [f32; 4],
+    last_out: Option<StepOutput>,
+    records: Vec<Record>,
+    stats: RunStats,
+    tracking: Rms,
+    estimate: Rms,
+    tracking_since: Option<f64>,
+    hover_since: Option<u64>,
+    sent: [bool; 4],
+    was_airborne: bool,
+    done_at: Option<u64>,
+    last_failsafe: Option<control_core::Failsafe>,
+}
+
+/// Roll, pitch, yaw (from facing the wall) of a world-from-body rotation, in f64.
+fn attitude_of(r: &[[f64; 3]; 3]) -> [f64; 3] {
+    // R_NB = R_WN^T R_WB: rows of R_NB are (-row 1, row 0, row 2) of R_WB.
+    let n = [[-r[1][0], -r[1][1], -r[1][2]], [r[0][0], r[0][1], r[0][2]], [r[2][0], r[2][1], r[2][2]]];
+    let pitch = (-n[2][0]).clamp(-1.0, 1.0).asin();
+    let roll = n[2][1].atan2(n[2][2]);
+    let yaw = n[1][0].atan2(n[0][0]);
+    [roll, pitch, yaw]
+}
+
+impl Sil {
+    /// Prepares a run.
+    pub fn new(scenario: &Scenario, seed: u64, mode: CameraMode) -> Result<Self> {
+        scenario.validate()?;
+        let m = &scenario.model;
+        let params = ModelParams::from_vehicle(
+            &scenario.vehicle,
+            m.motor_time_constant_s,
+            m.linear_drag_n_s_per_m,
+            Some(scenario.trajectory.ground_height_m as f64),
+        );
+        let yaw = geometry::deg(m.start_yaw_deg as f32);
+        let r0 = Attitude::new(0.0, 0.0, yaw).world_from_body();
+        let q0 = geometry::Quat::from_mat3(&r0);
+        let quad = Quadrotor::new(params, m.start_position_m, [q0.w as f64, q0.x as f64, q0.y as f64, q0.z as f64]);
+        let stack = FlightStack::new(scenario.flight_config()).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let dt_us = (m.physics_step_s * 1e6).round() as u64;
+        let every = |hz: f64| ((1e6 / hz) / dt_us as f64).round() as u64;
+        let renderer = match mode {
+            CameraMode::Rendered => Some(ForwardRenderer::new(scenario)?),
+            CameraMode::Analytic => None,
+        };
+        Ok(Self {
+            scenario: scenario.clone(),
+            seed,
+            mode,
+            quad,
+            stack,
+            imu: ImuModel::new(&scenario.imu, seed),
+            renderer,
+            vision: GroundVision::new(scenario),
+            link: VecDeque::new(),
+            link_rng: SimRng::stream(seed, "link-jitter"),
+            edge_rng: SimRng::stream(seed, "analytic-edges"),
+            t_us: 0,
+            dt_us,
+            imu_every: every(scenario.imu.rate_hz),
+            ctrl_every: every(scenario.mission.control_rate_hz),
+            mag_every: every(scenario.imu.mag_rate_hz),
+            record_every: every(100.0).max(1),
+            step_count: 0,
+            frame_index: 0,
+            next_frame_us: 0,
+            next_heartbeat_us: 0,
+            pending_imu: Vec::with_capacity(8),
+            pending_mag: None,
+            motor_cmd: [0.0; 4],
+            last_out: None,
+            records: Vec::new(),
+            stats: RunStats::default(),
+            tracking: Rms::default(),
+            estimate: Rms::default(),
+            tracking_since: None,
+            hover_since: None,
+            sent: [false; 4],
+            was_airborne: false,
+            done_at: None,
+            last_failsafe: None,
+        })
+    }
+
+    /// The scenario.
+    pub fn scenario(&self) -> &Scenario {
+        &self.scenario
+    }
+
+    /// Simulated time (s).
+    pub fn time_s(&self) -> f64 {
+        self.t_us as f64 * 1e-6
+    }
+
+    /// The recorded samples.
+    pub fn records(&self) -> &[Record] {
+        &self.records
+    }
+
+    /// The statistics so far.
+    pub fn stats(&self) -> &RunStats {
+        &self.stats
+    }
+
+    /// The simulated vehicle.
+    pub fn vehicle(&self) -> &Quadrotor {
+        &self.quad
+    }
+
+    fn send(&mut self, at_us: u64, msg: Uplink) {
+        // Keep the queue ordered by delivery time (stable for equal times).
+        let pos = self.link.iter().position(|(t, _)| *t > at_us).unwrap_or(self.link.len());
+        self.link.insert(pos, (at_us, msg));
+    }
+
+    fn camera_pose(&self) -> (Mat3, Vec3) {
+        let r = self.quad.rotation();
+        let r_wb = Mat3 { m: r.map(|row| row.map(|v| v as f32)) };
+        let mount = self.scenario.forward_camera_mount();
+        let p = self.quad.state.p;
+        let center = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) + r_wb.mul_vec(mount.offset_body_m);
+        (r_wb.mul_mat(&mount.body_from_camera), center)
+    }
+
+    fn capture_frame(&mut self) {
+        let (r_wc, center) = self.camera_pose();
+        let observation = match self.mode {
+            CameraMode::Rendered => {
+                let renderer = self.renderer.as_ref().map(|r| (r, r.default_settings()));
+                match renderer {
+                    Some((r, mut settings)) => {
+                        let mut s = self.seed ^ 0xF0F0_0000_0000_0000 ^ self.frame_index;
+                        settings.seed = splitmix64(&mut s);
+                        let img = r.render(&r_wc, center, &settings);
+                        self.vision.detect(&img).ok()
+                    }
+                    None => None,
+                }
+            }
+            CameraMode::Analytic => {
+                let cam = self.scenario.forward_camera_model();
+                let target = self.scenario.line_target();
+                let sigma = self.scenario.forward_camera.analytic_noise_px;
+                let rng = &mut self.edge_rng;
+                project_observation(&cam, &target, &r_wc.transpose(), center, 8.0, 2.0, || (sigma * rng.normal()) as f32)
+            }
+        };
+        let lat = self.scenario.forward_camera.clone();
+        let jitter = if lat.latency_jitter_s > 0.0 { self.link_rng.range(-lat.latency_jitter_s, lat.latency_jitter_s) } else { 0.0 };
+        let deliver = self.t_us + ((lat.latency_s + jitter).max(0.0) * 1e6).round() as u64;
+        let msg = VisionMeasurement { capture_time_us: self.t_us, frame_seq: self.frame_index as u32, observation };
+        self.send(deliver, Uplink::Vision(msg));
+        self.frame_index += 1;
+        self.stats.frames += 1;
+        self.next_frame_us = ((self.frame_index as f64) * 1e6 / lat.rate_hz).round() as u64;
+    }
+
+    fn operator(&mut self) {
+        let mi = self.scenario.mission.clone();
+        let t = self.time_s();
+        let lat = (self.scenario.link.latency_s * 1e6) as u64;
+        let mode = self.last_out.map(|o| o.control.status.mode);
+        let mut cmd = None;
+        if !self.sent[0] && t >= mi.arm_at_s {
+            self.sent[0] = true;
+            cmd = Some(Command::Arm);
+        } else if !self.sent[1] && t >= mi.takeoff_at_s && mode == Some(FlightMode::Armed) {
+            self.sent[1] = true;
+            cmd = Some(Command::TakeOff);
+        } else if !self.sent[2] && self.sent[1] && mode == Some(FlightMode::Hover) {
+            let since = *self.hover_since.get_or_insert(self.t_us);
+            if (self.t_us - since) as f64 * 1e-6 >= mi.track_after_hover_s {
+                self.sent[2] = true;
+                cmd = Some(Command::StartTracking);
+            }
+        } else if !self.sent[3] && self.sent[2] && mi.land_when_done && mode == Some(FlightMode::Hover) && self.tracking_since.is_some()
+        {
+            self.sent[3] = true;
+            cmd = Some(Command::Land);
+        }
+        if let Some(c) = cmd {
+            self.send(self.t_us + lat, Uplink::Command(c));
+        }
+        if self.t_us >= self.next_heartbeat_us {
+            self.send(self.t_us + lat, Uplink::Heartbeat);
+            self.next_heartbeat_us += (1e6 / self.scenario.link.heartbeat_hz) as u64;
+        }
+    }
+
+    fn control_step(&mut self) {
+        let mut delivered: Vec<Uplink> = Vec::new();
+        while let Some(&(at, msg)) = self.link.front() {
+            if at > self.t_us {
+                break;
+            }
+            self.link.pop_front();
+            delivered.push(msg);
+        }
+        let out = self.stack.step(&StepInput {
+            time_us: self.t_us,
+            imu: &self.pending_imu,
+            mag: self.pending_mag.take(),
+            uplink: &delivered,
+        });
+        self.pending_imu.clear();
+        self.motor_cmd = out.control.motors_rad_s;
+        let st = out.control.status;
+        let t = self.time_s();
+        if self.stats.modes.last().is_none_or(|(_, m)| *m != format!("{:?}", st.mode)) {
+            self.stats.modes.push((t, format!("{:?}", st.mode)));
+        }
+        if st.failsafe.is_some() && st.failsafe != self.last_failsafe {
+            self.stats.failsafes.push(format!("{:.2} s: {:?}", t, st.failsafe));
+        }
+        self.last_failsafe = st.failsafe;
+        self.stats.frames_solved = out.vision.solved;
+        self.stats.frames_no_target = out.vision.no_target;
+        self.stats.frames_rejected = out.vision.rejected;
+        if st.passes_done > self.stats.passes_done {
+            self.stats.passes_done = st.passes_done;
+        }
+        if st.mode.airborne() {
+            self.was_airborne = true;
+        }
+        // Tracking-phase errors (at the control rate).
+        let s = &self.quad.state;
+        if st.mode == FlightMode::Tracking {
+            self.tracking_since.get_or_insert(t);
+            let sp = out.control.setpoint.position_m;
+            let est = out.control.estimate.position_m;
+            self.tracking.add([s.p[0] - sp.x as f64, s.p[1] - sp.y as f64, s.p[2] - sp.z as f64]);
+            self.estimate.add([est.x as f64 - s.p[0], est.y as f64 - s.p[1], est.z as f64 - s.p[2]]);
+            self.stats.tracking_s = t - self.tracking_since.unwrap_or(t);
+        }
+        if self.was_airborne && st.mode == FlightMode::Disarmed && self.done_at.is_none() {
+            self.done_at = Some(self.t_us);
+            self.stats.landed = self.quad.on_ground;
+        }
+        self.last_out = Some(out);
+    }
+
+    fn record(&mut self) {
+        let Some(out) = self.last_out else { return };
+        let s = &self.quad.state;
+        let e = &out.control.estimate;
+        let sp = &out.control.setpoint;
+        self.records.push(Record {
+            t_s: self.time_s(),
+            true_p: s.p,
+            true_v: s.v,
+            true_att: attitude_of(&quat_to_mat(s.q)),
+            est_p: e.position_m.to_array(),
+            est_v: e.velocity_m_s.to_array(),
+            est_att: [e.attitude.roll, e.attitude.pitch, e.attitude.yaw],
+            des_p: sp.position_m.to_array(),
+            des_v: sp.velocity_m_s.to_array(),
+            motor_cmd: out.control.motors_rad_s,
+            motor: s.rotors,
+            mode: out.control.status.mode,
+            fix_age_s: out.control.status.fix_age_s,
+        });
+    }
+
+    fn check_crash(&mut self) {
+        let s = self.quad.state;
+        let r = quat_to_mat(s.q);
+        let tilt = r[2][2].clamp(-1.0, 1.0).acos().to_degrees();
+        if !self.quad.on_ground && self.was_airborne {
+            self.stats.max_tilt_deg = self.stats.max_tilt_deg.max(tilt);
+        }
+        self.stats.max_touchdown_speed_m_s = self.quad.max_touchdown_speed;
+        let reason = if tilt > 80.0 {
+            Some("tilt beyond 80 deg".to_string())
+        } else if self.quad.max_touchdown_speed > 1.5 {
+            Some(format!("hard touchdown at {:.2} m/s", self.quad.max_touchdown_speed))
+        } else if s.p[1] < 0.1 {
+            Some("hit the wall".to_string())
+        } else if !s.p.iter().chain(s.v.iter()).all(|v| v.is_finite()) {
+            Some("non-finite state".to_string())
+        } else {
+            None
+        };
+        if let Some(r) = reason {
+            self.stats.crashed = true;
+            self.stats.crash_reason = Some(r);
+        }
+    }
+
+    /// Advances one physics step. Returns `false` when the run is over (landed, crashed, or `end_us`).
+    pub fn step(&mut self, end_us: u64) -> bool {
+        // Physics with the rotor commands held.
+        let cmd = self.motor_cmd.map(|w| w as f64);
+        self.quad.step(self.dt_us as f64 * 1e-6, cmd);
+        self.t_us += self.dt_us;
+        self.step_count += 1;
+        if self.step_count.is_multiple_of(self.imu_every) {
+            let s = self.imu.sample(&self.quad, self.t_us);
+            self.pending_imu.push(s);
+        }
+        if self.step_count.is_multiple_of(self.mag_every) {
+            self.pending_mag = Some(self.imu.mag(&self.quad));
+        }
+        if self.t_us >= self.next_frame_us {
+            self.capture_frame();
+        }
+        self.operator();
+        if self.step_count.is_multiple_of(self.ctrl_every) {
+            self.control_step();
+        }
+        if self.step_count.is_multiple_of(self.record_every) {
+            self.record();
+        }
+        self.check_crash();
+        self.stats.sim_time_s = self.time_s();
+        let landed_done = self.done_at.is_some_and(|t| self.t_us >= t + 500_000);
+        !(self.stats.crashed || landed_done || self.t_us >= end_us)
+    }
+
+    /// Runs to the end (landed and disarmed, crashed, or `duration_s`), calling `progress` with the simulated
+    /// time about every 0.1 s of it.
+    pub fn run(&mut self, duration_s: f64, mut progress: impl FnMut(f64)) -> RunStats {
+        let end_us = (duration_s * 1e6).round() as u64;
+        let every = (100_000 / self.dt_us).max(1);
+        while self.step(end_us) {
+            if self.step_count.is_multiple_of(every) {
+                progress(self.time_s());
+            }
+        }
+        progress(self.time_s());
+        self.finish()
+    }
+
+    /// Final statistics.
+    pub fn finish(&mut self) -> RunStats {
+        self.stats.rms_error_m = self.tracking.get();
+        self.stats.estimate_rms_error_m = self.estimate.get();
+        self.stats.clone()
+    }
+}
