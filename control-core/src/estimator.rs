@@ -692,7 +692,7 @@ mod tests {
             t += 1000;
             let s = ImuSample { time_us: t, gyro_rad_s: [0.0; 3], accel_m_s2: [0.05, 0.0, GRAVITY] };
             e.predict(&s);
-            if t % 2000 == 0 {
+            if t.is_multiple_of(2000) {
                 e.propagate_covariance(t);
             }
             if t >= next_frame {

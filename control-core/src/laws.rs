@@ -62,7 +62,15 @@ pub struct LawStatus {
 
 /// One axis of eq. 33-34. `sign = +1` for the chain `e'' = g angle` (pitch, forward error), `-1` for
 /// `e'' = -g angle` (roll, leftward error). Returns `u = tau / J` and the angle the position terms ask for.
-pub fn bounded_axis(g: &SaturatedAxisGains, sign: f32, e: f32, e_dot: f32, angle: f32, rate: f32, angle_ref: f32) -> (f32, f32, bool) {
+pub fn bounded_axis(
+    g: &SaturatedAxisGains,
+    sign: f32,
+    e: f32,
+    e_dot: f32,
+    angle: f32,
+    rate: f32,
+    angle_ref: f32,
+) -> (f32, f32, bool) {
     let [k1, k2, k3, k4] = g.k;
     let [b1, b2, b3, b4] = g.b;
     let pos = sat(k4 * e_dot, b4) + sat(k3 * e, b3);
@@ -119,18 +127,35 @@ impl Controller {
         let (e_h, de_h, a_h) = (head(e_n), head(de_n), head(a_n));
 
         // Trims: slow integrals of the position error into the angle references (zero gains: the paper).
+        // Anti-windup: an axis integrates only while its position and velocity terms are unsaturated.
+        let linear = |a: &SaturatedAxisGains, e: f32, de: f32| {
+            (a.k[2] * e).abs() < a.b[2] && (a.k[3] * de).abs() < a.b[3]
+        };
         if integrate && dt > 0.0 {
             let p = &g.pitch;
             let r = &g.roll;
-            self.trim[1] = clamp_finite(self.trim[1] - p.trim_gain * e_h.x * dt, -p.trim_limit_rad, p.trim_limit_rad);
-            self.trim[0] = clamp_finite(self.trim[0] + r.trim_gain * e_h.y * dt, -r.trim_limit_rad, r.trim_limit_rad);
+            if linear(p, e_h.x, de_h.x) {
+                self.trim[1] = clamp_finite(
+                    self.trim[1] - p.trim_gain * e_h.x * dt,
+                    -p.trim_limit_rad,
+                    p.trim_limit_rad,
+                );
+            }
+            if linear(r, e_h.y, de_h.y) {
+                self.trim[0] = clamp_finite(
+                    self.trim[0] + r.trim_gain * e_h.y * dt,
+                    -r.trim_limit_rad,
+                    r.trim_limit_rad,
+                );
+            }
         }
         // Feed-forward tilt for the desired acceleration: forward a = g tan(pitch), left a = -g tan(roll).
         let pitch_ff = libm::atanf(a_h.x / GRAVITY);
         let roll_ff = -libm::atanf(a_h.y / GRAVITY);
         let (u_pitch, cmd_pitch, sat_p) =
             bounded_axis(&g.pitch, 1.0, e_h.x, de_h.x, pitch, w.y, pitch_ff + self.trim[1]);
-        let (u_roll, cmd_roll, sat_r) = bounded_axis(&g.roll, -1.0, e_h.y, de_h.y, roll, w.x, roll_ff + self.trim[0]);
+        let (u_roll, cmd_roll, sat_r) =
+            bounded_axis(&g.roll, -1.0, e_h.y, de_h.y, roll, w.x, roll_ff + self.trim[0]);
 
         // Yaw (eq. 31).
         let y = &g.yaw;
@@ -139,9 +164,13 @@ impl Controller {
         // Altitude (eq. 30) with the bounded integral.
         let a = &g.altitude;
         let (ez, dez) = (e_w.z, de_w.z);
-        if integrate && dt > 0.0 {
-            self.altitude_integral =
-                clamp_finite(self.altitude_integral + a.integral_gain * ez * dt, -a.integral_limit_m_s2, a.integral_limit_m_s2);
+        // Anti-windup: integrate only near the reference.
+        if integrate && dt > 0.0 && ez.abs() < 0.3 && dez.abs() < 0.5 {
+            self.altitude_integral = clamp_finite(
+                self.altitude_integral + a.integral_gain * ez * dt,
+                -a.integral_limit_m_s2,
+                a.integral_limit_m_s2,
+            );
         }
         let cos_tilt = (libm::cosf(roll) * libm::cosf(pitch)).max(a.min_cos_tilt);
         let acc_z = GRAVITY + sp.accel_m_s2.z - a.a_z1 * dez - a.a_z2 * ez - self.altitude_integral;

@@ -80,7 +80,14 @@ pub enum FlightMode {
 impl FlightMode {
     /// Whether the vehicle is (meant to be) flying.
     pub fn airborne(self) -> bool {
-        matches!(self, FlightMode::TakeOff | FlightMode::Hover | FlightMode::Tracking | FlightMode::VisionHold | FlightMode::Landing)
+        matches!(
+            self,
+            FlightMode::TakeOff
+                | FlightMode::Hover
+                | FlightMode::Tracking
+                | FlightMode::VisionHold
+                | FlightMode::Landing
+        )
     }
 }
 
@@ -320,7 +327,8 @@ impl ControlCore {
             }
             (Command::StartTracking, Hover) => {
                 self.mode = Tracking;
-                self.sweep = Some(Sweep::new(t.x_range_m, t.speed_m_s, t.accel_m_s2, t.sweeps, self.hold.x, now));
+                self.sweep =
+                    Some(Sweep::new(t.x_range_m, t.speed_m_s, t.accel_m_s2, t.sweeps, self.hold.x, now));
                 Ok(())
             }
             (Command::StopTracking, Tracking) => {
@@ -374,7 +382,8 @@ impl ControlCore {
             }
         }
         self.estimator.propagate_covariance(now);
-        let imu_ok = self.last_imu_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.imu_timeout_s);
+        let imu_ok =
+            self.last_imu_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.imu_timeout_s);
         if matches!(self.mode, FlightMode::Disarmed | FlightMode::Armed) && n_ok > 0 {
             self.estimator.fuse_ground(accel_sum * (1.0 / n_ok as f32), traj.ground_height_m);
         }
@@ -395,7 +404,8 @@ impl ControlCore {
         if inp.link_message {
             self.last_link_us = Some(now);
         }
-        let link_ok = self.last_link_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.link_land_after_s);
+        let link_ok =
+            self.last_link_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.link_land_after_s);
         let est = self.estimator.estimate(now);
 
         // Faults: motors off.
@@ -465,7 +475,9 @@ impl ControlCore {
                     sp.accel_m_s2.z = az;
                 }
                 if self.mode == FlightMode::TakeOff {
-                    let done = self.vertical.is_some_and(|(mv, t0)| now.saturating_sub(t0) as f32 * 1e-6 >= mv.duration_s());
+                    let done = self
+                        .vertical
+                        .is_some_and(|(mv, t0)| now.saturating_sub(t0) as f32 * 1e-6 >= mv.duration_s());
                     let close = (est.position_m.z - traj.z_d_m).abs() < 0.05;
                     if done && close {
                         let since = *self.settled_since_us.get_or_insert(now);
@@ -480,7 +492,8 @@ impl ControlCore {
                     // Touchdown: near the ground and no longer descending although the reference keeps going
                     // down, for half a second. (Vision usually loses the line in the last decimetres, so the
                     // height is the IMU's; the margin covers its drift.)
-                    let down = est.position_m.z < traj.ground_height_m + 0.15 && est.velocity_m_s.z.abs() < 0.1;
+                    let down =
+                        est.position_m.z < traj.ground_height_m + 0.15 && est.velocity_m_s.z.abs() < 0.1;
                     if down {
                         let since = *self.touchdown_since_us.get_or_insert(now);
                         if now.saturating_sub(since) > 500_000 {

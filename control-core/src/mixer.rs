@@ -105,7 +105,11 @@ pub fn forces(w: [f32; 4], v: &VehicleParams) -> Demand {
     let (k, kq, l) = (v.thrust_coeff, v.drag_torque_coeff, v.arm_length_m);
     Demand {
         thrust_n: k * (s[0] + s[1] + s[2] + s[3]),
-        torque_nm: geometry::Vec3::new(l * k * (s[1] - s[3]), l * k * (s[2] - s[0]), kq * (s[0] + s[2] - s[1] - s[3])),
+        torque_nm: geometry::Vec3::new(
+            l * k * (s[1] - s[3]),
+            l * k * (s[2] - s[0]),
+            kq * (s[0] + s[2] - s[1] - s[3]),
+        ),
     }
 }
 

@@ -115,7 +115,11 @@ impl VehicleParams {
             "full thrust must exceed 1.3 times the weight",
         )?;
         let t_min = 4.0 * self.thrust_coeff * self.motor_speed_min_rad_s * self.motor_speed_min_rad_s;
-        check(t_min < 0.7 * self.mass_kg * GRAVITY, "vehicle.motor_speed_min_rad_s", "idle thrust must stay below 0.7 times the weight")
+        check(
+            t_min < 0.7 * self.mass_kg * GRAVITY,
+            "vehicle.motor_speed_min_rad_s",
+            "idle thrust must stay below 0.7 times the weight",
+        )
     }
 }
 
@@ -200,19 +204,36 @@ pub struct SaturatedAxisGains {
 
 impl Default for SaturatedAxisGains {
     fn default() -> Self {
-        // Poles: an attitude pair at 10 rad/s (damping 0.8) and a position pair at 1.5 rad/s (damping 0.9):
-        // (s^2 + 16 s + 100)(s^2 + 2.7 s + 2.25).
-        let (a, b, c, d) = (16.0f32, 100.0f32, 2.7f32, 2.25f32);
-        Self {
-            k: [b + a * c + d, a + c, b * d / GRAVITY, (a * d + b * c) / GRAVITY],
-            b: [40.0, 40.0, 7.0, 7.0],
-            trim_gain: 0.015,
-            trim_limit_rad: 0.05,
-        }
+        // Poles: an attitude pair at 10 rad/s (damping 0.8) and a position pair at POSITION_POLE_RAD_S
+        // (damping 0.9).
+        Self::from_poles(10.0, 0.8, POSITION_POLE_RAD_S, 0.9, [40.0, 40.0, 8.0, 12.0], TRIM_GAIN, 0.05)
     }
 }
 
+const POSITION_POLE_RAD_S: f32 = 2.5;
+const TRIM_GAIN: f32 = 0.05;
+
 impl SaturatedAxisGains {
+    /// Gains placing the linear part's poles at an attitude pair (`w_a` rad/s, damping `z_a`) and a position
+    /// pair (`w_p`, `z_p`): `(s^2 + 2 z_a w_a s + w_a^2)(s^2 + 2 z_p w_p s + w_p^2)`.
+    pub fn from_poles(
+        w_a: f32,
+        z_a: f32,
+        w_p: f32,
+        z_p: f32,
+        b: [f32; 4],
+        trim_gain: f32,
+        trim_limit_rad: f32,
+    ) -> Self {
+        let (a, bb, c, d) = (2.0 * z_a * w_a, w_a * w_a, 2.0 * z_p * w_p, w_p * w_p);
+        Self {
+            k: [bb + a * c + d, a + c, bb * d / GRAVITY, (a * d + bb * c) / GRAVITY],
+            b,
+            trim_gain,
+            trim_limit_rad,
+        }
+    }
+
     /// Largest tilt the position and velocity terms can demand: `(b3 + b4) / k1` (rad).
     pub fn tilt_bound_rad(&self) -> f32 {
         (self.b[2] + self.b[3]) / self.k[0]
@@ -228,8 +249,22 @@ impl SaturatedAxisGains {
     pub fn validate(&self, authority_rad_s2: f32, max_tilt_rad: f32, axis: Axis) -> Result<(), ParamError> {
         let f = |which: &'static [&'static str; 6], i: usize| which[i];
         let names: &'static [&'static str; 6] = match axis {
-            Axis::Roll => &["gains.roll.k", "gains.roll.b", "gains.roll", "gains.roll.b", "gains.roll.trim_gain", "gains.roll.trim_limit_rad"],
-            Axis::Pitch => &["gains.pitch.k", "gains.pitch.b", "gains.pitch", "gains.pitch.b", "gains.pitch.trim_gain", "gains.pitch.trim_limit_rad"],
+            Axis::Roll => &[
+                "gains.roll.k",
+                "gains.roll.b",
+                "gains.roll",
+                "gains.roll.b",
+                "gains.roll.trim_gain",
+                "gains.roll.trim_limit_rad",
+            ],
+            Axis::Pitch => &[
+                "gains.pitch.k",
+                "gains.pitch.b",
+                "gains.pitch",
+                "gains.pitch.b",
+                "gains.pitch.trim_gain",
+                "gains.pitch.trim_limit_rad",
+            ],
         };
         for &k in &self.k {
             positive(k, f(names, 0))?;
@@ -239,7 +274,11 @@ impl SaturatedAxisGains {
         }
         let [c3, c2, c1, c0] = self.characteristic();
         // Routh-Hurwitz for a quartic: all coefficients positive, c3 c2 > c1, c3 c2 c1 > c1^2 + c3^2 c0.
-        check(c3 * c2 > c1, f(names, 2), "Routh-Hurwitz fails: k2 k1 must exceed g k4 (linear part unstable)")?;
+        check(
+            c3 * c2 > c1,
+            f(names, 2),
+            "Routh-Hurwitz fails: k2 k1 must exceed g k4 (linear part unstable)",
+        )?;
         check(
             c3 * c2 * c1 > c1 * c1 + c3 * c3 * c0,
             f(names, 2),
@@ -250,6 +289,14 @@ impl SaturatedAxisGains {
             self.b[0] > pos && self.b[1] > pos,
             f(names, 3),
             "the angle terms must dominate: b1 and b2 must each exceed b3 + b4",
+        )?;
+        // With b4 <= b3 the two terms can saturate against each other far from the reference and cancel: the
+        // vehicle then coasts (or, with any integral, accelerates) past it. b4 > b3 caps the approach speed at
+        // b3 / k4 instead, as the inner level of a nested saturation would.
+        check(
+            self.b[3] > self.b[2],
+            f(names, 3),
+            "the velocity term must saturate above the position term (b4 > b3), or far from the reference they cancel",
         )?;
         check(
             self.b[0] + self.b[1] <= authority_rad_s2,
@@ -263,7 +310,11 @@ impl SaturatedAxisGains {
         )?;
         non_negative(self.trim_gain, f(names, 4))?;
         non_negative(self.trim_limit_rad, f(names, 5))?;
-        check(self.trim_limit_rad <= 0.2 * max_tilt_rad, f(names, 5), "must stay below a fifth of max_tilt_rad")?;
+        check(
+            self.trim_limit_rad <= 0.2 * max_tilt_rad,
+            f(names, 5),
+            "must stay below a fifth of max_tilt_rad",
+        )?;
         // The trim must be much slower than the position loop it sits on: k_i << k3 / k1 * (slowest pole).
         check(
             self.trim_gain <= 0.2 * self.k[2] / self.k[0] * libm::sqrtf(c0).min(c1 / c2.max(1e-6)),
@@ -324,8 +375,16 @@ impl ControlGains {
         non_negative(a.integral_gain, "gains.altitude.integral_gain")?;
         non_negative(a.integral_limit_m_s2, "gains.altitude.integral_limit_m_s2")?;
         // With the integral: s^3 + a_z1 s^2 + a_z2 s + k_i, stable iff a_z1 a_z2 > k_i.
-        check(a.a_z1 * a.a_z2 > a.integral_gain, "gains.altitude.integral_gain", "must be below a_z1 a_z2 (Routh-Hurwitz)")?;
-        check(a.min_cos_tilt > 0.1 && a.min_cos_tilt <= 1.0, "gains.altitude.min_cos_tilt", "must lie in (0.1, 1]")?;
+        check(
+            a.a_z1 * a.a_z2 > a.integral_gain,
+            "gains.altitude.integral_gain",
+            "must be below a_z1 a_z2 (Routh-Hurwitz)",
+        )?;
+        check(
+            a.min_cos_tilt > 0.1 && a.min_cos_tilt <= 1.0,
+            "gains.altitude.min_cos_tilt",
+            "must lie in (0.1, 1]",
+        )?;
         check(
             a.max_thrust_to_weight > 1.2 && a.max_thrust_to_weight.is_finite(),
             "gains.altitude.max_thrust_to_weight",
@@ -335,7 +394,11 @@ impl ControlGains {
         positive(y.a_psi1, "gains.yaw.a_psi1")?;
         positive(y.a_psi2, "gains.yaw.a_psi2")?;
         positive(y.max_accel_rad_s2, "gains.yaw.max_accel_rad_s2")?;
-        check(self.max_tilt_rad > 0.05 && self.max_tilt_rad < 1.0, "gains.max_tilt_rad", "must lie in (0.05, 1) rad")?;
+        check(
+            self.max_tilt_rad > 0.05 && self.max_tilt_rad < 1.0,
+            "gains.max_tilt_rad",
+            "must lie in (0.05, 1) rad",
+        )?;
         let auth = v.tilt_authority_rad_s2();
         self.roll.validate(auth, self.max_tilt_rad, Axis::Roll)?;
         self.pitch.validate(auth, self.max_tilt_rad, Axis::Pitch)
@@ -396,7 +459,11 @@ impl EstimatorParams {
         positive(self.vision_position_floor_m, "estimator.vision_position_floor_m")?;
         positive(self.vision_yaw_floor_rad, "estimator.vision_yaw_floor_rad")?;
         positive(self.mag_heading_sigma_rad, "estimator.mag_heading_sigma_rad")?;
-        check(self.gate_sigma >= 2.0 && self.gate_sigma.is_finite(), "estimator.gate_sigma", "must be at least 2")?;
+        check(
+            self.gate_sigma >= 2.0 && self.gate_sigma.is_finite(),
+            "estimator.gate_sigma",
+            "must be at least 2",
+        )?;
         check(
             self.max_fix_age_s > 0.0 && self.max_fix_age_s <= crate::estimator::HISTORY_S,
             "estimator.max_fix_age_s",
@@ -462,17 +529,41 @@ impl Default for TrajectoryParams {
 impl TrajectoryParams {
     fn validate(&self) -> Result<(), ParamError> {
         positive(self.y_d_m, "trajectory.y_d_m")?;
-        check(self.z_d_m > self.ground_height_m + 0.2 && self.z_d_m.is_finite(), "trajectory.z_d_m", "must be at least 0.2 m above the ground height")?;
+        check(
+            self.z_d_m > self.ground_height_m + 0.2 && self.z_d_m.is_finite(),
+            "trajectory.z_d_m",
+            "must be at least 0.2 m above the ground height",
+        )?;
         check(
             self.x_range_m.iter().all(|v| v.is_finite()) && self.x_range_m[1] > self.x_range_m[0] + 0.1,
             "trajectory.x_range_m",
             "must be [start, end] with end at least 0.1 m past start",
         )?;
-        check(self.speed_m_s > 0.0 && self.speed_m_s <= 2.0, "trajectory.speed_m_s", "must lie in (0, 2] m/s")?;
-        check(self.accel_m_s2 > 0.0 && self.accel_m_s2 <= 3.0, "trajectory.accel_m_s2", "must lie in (0, 3] m/s^2")?;
-        check(self.yaw_d_rad.abs() <= 1.0, "trajectory.yaw_d_rad", "must lie within 1 rad of facing the wall")?;
-        check(self.takeoff_speed_m_s > 0.0 && self.takeoff_speed_m_s <= 2.0, "trajectory.takeoff_speed_m_s", "must lie in (0, 2] m/s")?;
-        check(self.landing_speed_m_s > 0.0 && self.landing_speed_m_s <= 1.5, "trajectory.landing_speed_m_s", "must lie in (0, 1.5] m/s")?;
+        check(
+            self.speed_m_s > 0.0 && self.speed_m_s <= 2.0,
+            "trajectory.speed_m_s",
+            "must lie in (0, 2] m/s",
+        )?;
+        check(
+            self.accel_m_s2 > 0.0 && self.accel_m_s2 <= 3.0,
+            "trajectory.accel_m_s2",
+            "must lie in (0, 3] m/s^2",
+        )?;
+        check(
+            self.yaw_d_rad.abs() <= 1.0,
+            "trajectory.yaw_d_rad",
+            "must lie within 1 rad of facing the wall",
+        )?;
+        check(
+            self.takeoff_speed_m_s > 0.0 && self.takeoff_speed_m_s <= 2.0,
+            "trajectory.takeoff_speed_m_s",
+            "must lie in (0, 2] m/s",
+        )?;
+        check(
+            self.landing_speed_m_s > 0.0 && self.landing_speed_m_s <= 1.5,
+            "trajectory.landing_speed_m_s",
+            "must lie in (0, 1.5] m/s",
+        )?;
         non_negative(self.settle_s, "trajectory.settle_s")?;
         non_negative(self.ground_height_m, "trajectory.ground_height_m")
     }
@@ -517,8 +608,16 @@ impl FailsafeParams {
         positive(self.vision_land_after_s, "failsafe.vision_land_after_s")?;
         positive(self.link_land_after_s, "failsafe.link_land_after_s")?;
         positive(self.imu_timeout_s, "failsafe.imu_timeout_s")?;
-        check(self.max_arming_tilt_rad > 0.0 && self.max_arming_tilt_rad < 0.5, "failsafe.max_arming_tilt_rad", "must lie in (0, 0.5) rad")?;
-        check(self.crash_tilt_rad > 0.5 && self.crash_tilt_rad < 3.0, "failsafe.crash_tilt_rad", "must lie in (0.5, 3) rad")
+        check(
+            self.max_arming_tilt_rad > 0.0 && self.max_arming_tilt_rad < 0.5,
+            "failsafe.max_arming_tilt_rad",
+            "must lie in (0, 0.5) rad",
+        )?;
+        check(
+            self.crash_tilt_rad > 0.5 && self.crash_tilt_rad < 3.0,
+            "failsafe.crash_tilt_rad",
+            "must lie in (0.5, 3) rad",
+        )
     }
 }
 
@@ -576,7 +675,7 @@ mod tests {
         let mut p = FlightParams::paper();
         // All poles at -2 is stable: k2 = 8, k1 = 24, k4 = 32/g, k3 = 16/g.
         p.gains.roll.k = [24.0, 8.0, 16.0 / GRAVITY, 32.0 / GRAVITY];
-        p.gains.roll.b = [40.0, 40.0, 1.0, 1.0];
+        p.gains.roll.b = [40.0, 40.0, 1.0, 1.5];
         p.gains.roll.trim_gain = 0.0;
         p.validate().unwrap();
         // Too much velocity gain: k2 k1 < g k4.
@@ -598,11 +697,14 @@ mod tests {
         assert_eq!(e.field, "gains.pitch.b");
         assert!(e.problem.contains("dominate"));
         // More than the rotors can give.
-        p.gains.pitch.b = [80.0, 80.0, 7.0, 7.0];
+        p.gains.pitch.b = [80.0, 80.0, 7.0, 8.0];
         assert!(p.validate().unwrap_err().problem.contains("rotors"));
+        // Position and velocity terms that can cancel far from the reference.
+        p.gains.pitch.b = [40.0, 40.0, 8.0, 8.0];
+        assert!(p.validate().unwrap_err().problem.contains("b4 > b3"));
         // A tilt bound (b3 + b4) / k1 beyond max_tilt.
-        p.gains.pitch.b = [40.0, 40.0, 7.0, 7.0];
-        p.gains.max_tilt_rad = 0.08;
+        p.gains.pitch.b = [40.0, 40.0, 8.0, 12.0];
+        p.gains.max_tilt_rad = 0.1;
         assert!(p.validate().unwrap_err().problem.contains("largest tilt"));
     }
 

@@ -42,7 +42,9 @@ impl Move {
         let d = to - from;
         let dir = if d >= 0.0 { 1.0 } else { -1.0 };
         let dist = d.abs();
-        let (v_top, t_acc) = if dist >= v * v / a { (v, v / a) } else {
+        let (v_top, t_acc) = if dist >= v * v / a {
+            (v, v / a)
+        } else {
             let vp = libm::sqrtf(dist * a);
             (vp, vp / a)
         };

@@ -13,13 +13,17 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+// `!(x > 0.0)` deliberately rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use control_core::estimator::{ImuSample, PositionFix};
 use control_core::params::{FlightParams, ParamError};
 use control_core::{Command, ControlCore, ControlInputs, ControlOutputs};
 use geometry::Vec3;
 use protocol::{Uplink, VisionMeasurement};
-use vision_core::{AttitudeSource, CameraModel, CameraMount, LineTarget, PoseError, PoseParams, PoseSolution};
+use vision_core::{
+    AttitudeSource, CameraModel, CameraMount, LineTarget, PoseError, PoseParams, PoseSolution,
+};
 
 /// What the on-board pose solve needs to know about the forward camera and the line.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -136,7 +140,11 @@ impl FlightStack {
         if !(cfg.vision.attitude_sigma_floor_rad > 0.0) {
             return Err(ParamError { field: "vision.attitude_sigma_floor_rad", problem: "must be positive" });
         }
-        Ok(Self { control: ControlCore::new(cfg.control)?, vision: cfg.vision, counters: VisionCounters::default() })
+        Ok(Self {
+            control: ControlCore::new(cfg.control)?,
+            vision: cfg.vision,
+            counters: VisionCounters::default(),
+        })
     }
 
     /// The control core (read-only).

@@ -63,7 +63,9 @@ pub struct Telemetry {
     pub step_cost: u32,
 }
 
-/// Vehicle to ground station.
+/// Vehicle to ground station. (Messages live on the stack and are encoded at once: no boxing without an
+/// allocator, hence the size difference between variants.)
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Downlink {

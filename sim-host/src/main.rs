@@ -1,6 +1,7 @@
 //! `sim-host`: render camera frames, run the vision, fly the paper's experiment in simulation.
 //!
-//! Exit codes: 0 success; 1 bad input or option (message on stderr); 2 the frame has no target.
+//! Exit codes: 0 success; 1 bad input or option (message on stderr); 2 the frame has no target; 3 the
+//! simulated vehicle crashed.
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use geometry::frames::Attitude;
@@ -21,7 +22,8 @@ use vision_core::AttitudeSource;
     long_about = "Simulator, ground-station vision and tools for the wall-line quadrotor.\n\n\
         World frame: x along the wall and the line, y from the wall to the vehicle (the distance to the wall), \
         z up from the floor. Angles are in degrees; roll, pitch and yaw are all zero when the vehicle is level \
-        and faces the wall.\n\nExit codes: 0 success, 1 bad input or option, 2 no target in the frame."
+        and faces the wall.\n\nExit codes: 0 success, 1 bad input or option, 2 no target in the frame, 3 the \
+        simulated vehicle crashed."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -35,6 +37,38 @@ enum Command {
     /// Run the vision on recorded frames.
     #[command(subcommand)]
     Vision(VisionCommand),
+    /// Fly a scenario in simulation with the flight code (software in the loop).
+    Fly(FlyArgs),
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum CameraSim {
+    /// Rendered images through the full vision pipeline.
+    Rendered,
+    /// The line's edges projected analytically with edge noise (fast).
+    Analytic,
+}
+
+#[derive(Args, Debug)]
+struct FlyArgs {
+    /// Scenario: a built-in name (`paper`) or a TOML file.
+    #[arg(long, default_value = "paper")]
+    scenario: String,
+    /// Seed of every noise stream (a run is a pure function of scenario, seed and camera mode).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Longest simulated time in seconds (default: the scenario's limit; the run ends when it has landed).
+    #[arg(long)]
+    duration: Option<f64>,
+    /// How the forward camera is simulated.
+    #[arg(long, value_enum, default_value = "rendered")]
+    camera: CameraSim,
+    /// Output directory (summary.json, trajectory.csv, x/y/z/vx/vy.png).
+    #[arg(long)]
+    out: PathBuf,
+    /// Skip the PNG plots.
+    #[arg(long)]
+    no_plots: bool,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -219,6 +253,71 @@ fn vision_pose(a: &PoseArgs) -> Result<ExitCode> {
     }
 }
 
+fn fly(a: &FlyArgs) -> Result<ExitCode> {
+    use indicatif::{ProgressBar, ProgressStyle};
+    use sim_host::fly::{FlyOptions, fly};
+    use sim_host::sil::CameraMode;
+    let scenario = Scenario::load(&a.scenario)?;
+    if let Some(d) = a.duration
+        && !(d > 0.0 && d.is_finite())
+    {
+        bail!("--duration must be positive");
+    }
+    let camera = match a.camera {
+        CameraSim::Rendered => CameraMode::Rendered,
+        CameraSim::Analytic => CameraMode::Analytic,
+    };
+    let opts = FlyOptions {
+        scenario,
+        seed: a.seed,
+        duration_s: a.duration,
+        camera,
+        out: a.out.clone(),
+        plots: !a.no_plots,
+    };
+    let bar = ProgressBar::new(1000);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} flying [{bar:40}] {msg} ({elapsed} elapsed)")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let result = fly(&opts, |t, end| {
+        bar.set_position((t / end * 1000.0).min(1000.0) as u64);
+        bar.set_message(format!("{t:.1} s simulated"));
+    })?;
+    bar.finish_and_clear();
+    let st = &result.stats;
+    eprintln!(
+        "{} s simulated in {:.1} s ({:.0}x real time), {} sweep passes, {}",
+        format_args!("{:.1}", st.sim_time_s),
+        result.wall_time_s,
+        st.sim_time_s / result.wall_time_s.max(1e-9),
+        st.passes_done,
+        if st.crashed {
+            format!("CRASHED: {}", st.crash_reason.clone().unwrap_or_default())
+        } else if st.landed {
+            "landed".to_string()
+        } else {
+            "not landed".to_string()
+        }
+    );
+    eprintln!(
+        "tracking RMS error x {:.1} mm, y {:.1} mm, z {:.1} mm; estimate RMS error x {:.1} mm, y {:.1} mm, z {:.1} mm; max tilt {:.2} deg",
+        1e3 * st.rms_error_m[0],
+        1e3 * st.rms_error_m[1],
+        1e3 * st.rms_error_m[2],
+        1e3 * st.estimate_rms_error_m[0],
+        1e3 * st.estimate_rms_error_m[1],
+        1e3 * st.estimate_rms_error_m[2],
+        st.max_tilt_deg
+    );
+    eprintln!("wrote:");
+    for f in &result.files {
+        eprintln!("  {}", f.display());
+    }
+    Ok(if st.crashed { ExitCode::from(3) } else { ExitCode::SUCCESS })
+}
+
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(c) => c,
@@ -237,6 +336,7 @@ fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Render(a) => render(a),
         Command::Vision(VisionCommand::Pose(a)) => vision_pose(a),
+        Command::Fly(a) => fly(a),
     };
     match result {
         Ok(code) => code,

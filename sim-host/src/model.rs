@@ -84,7 +84,12 @@ pub struct ModelParams {
 
 impl ModelParams {
     /// From the flight code's vehicle parameters plus the model-only ones.
-    pub fn from_vehicle(v: &VehicleParams, motor_tau_s: f64, linear_drag: f64, ground_height_m: Option<f64>) -> Self {
+    pub fn from_vehicle(
+        v: &VehicleParams,
+        motor_tau_s: f64,
+        linear_drag: f64,
+        ground_height_m: Option<f64>,
+    ) -> Self {
         Self {
             mass_kg: v.mass_kg as f64,
             arm_m: v.arm_length_m as f64,
@@ -254,7 +259,8 @@ impl Quadrotor {
                     n.p[2] = g;
                     n.v = [0.0; 3];
                     n.w = [0.0; 3];
-                    let yaw = (2.0 * (n.q[0] * n.q[3] + n.q[1] * n.q[2])).atan2(1.0 - 2.0 * (n.q[2] * n.q[2] + n.q[3] * n.q[3]));
+                    let yaw = (2.0 * (n.q[0] * n.q[3] + n.q[1] * n.q[2]))
+                        .atan2(1.0 - 2.0 * (n.q[2] * n.q[2] + n.q[3] * n.q[3]));
                     n.q = [(0.5 * yaw).cos(), 0.0, 0.0, (0.5 * yaw).sin()];
                     self.on_ground = true;
                 } else {
@@ -363,7 +369,13 @@ mod tests {
         let mut p = params();
         p.k = 0.0;
         p.k_tau = 0.0;
-        let s = State { p: [0.0; 3], v: [0.0; 3], q: level(), w: [1.0, 0.0, 0.0], rotors: [0.0, 500.0, 0.0, 500.0] };
+        let s = State {
+            p: [0.0; 3],
+            v: [0.0; 3],
+            q: level(),
+            w: [1.0, 0.0, 0.0],
+            rotors: [0.0, 500.0, 0.0, 500.0],
+        };
         let d = derivative(&p, &s, s.rotors);
         let expected = p.rotor_inertia * 1000.0 / p.inertia[1];
         assert!((d.dw[1] - expected).abs() < 1e-9, "{} vs {expected}", d.dw[1]);
@@ -378,7 +390,13 @@ mod tests {
         let mut p = params();
         p.k = 0.0;
         p.k_tau = 0.0;
-        let start = State { p: [0.0; 3], v: [0.1, 0.0, 0.0], q: level(), w: [3.0, -2.0, 1.0], rotors: [400.0, 700.0, 400.0, 700.0] };
+        let start = State {
+            p: [0.0; 3],
+            v: [0.1, 0.0, 0.0],
+            q: level(),
+            w: [3.0, -2.0, 1.0],
+            rotors: [400.0, 700.0, 400.0, 700.0],
+        };
         let run = |h: f64| {
             let mut q = Quadrotor::new(p, [0.0; 3], level());
             q.state = start;

@@ -2,14 +2,14 @@
 //!
 //! Unknown fields are rejected and every value is checked when the file loads; errors name the field.
 use anyhow::{Context, Result, bail};
-use geometry::frames::BODY_FROM_FORWARD_CAMERA;
-use geometry::{Mat3, Vec3};
-use serde::{Deserialize, Serialize};
-use std::path::Path;
 use control_core::params::{
     ControlGains, EstimatorParams, FailsafeParams, FlightParams, TrajectoryParams, VehicleParams,
 };
 use flight_core::{FlightConfig, VisionConfig};
+use geometry::frames::BODY_FROM_FORWARD_CAMERA;
+use geometry::{Mat3, Vec3};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
 use vision_core::{CameraModel, CameraMount, Distortion, LineTarget};
 
 /// The built-in scenarios: `(name, TOML text)`.
@@ -450,29 +450,61 @@ impl Scenario {
             "must lie in [0, 5]",
         )?;
         check(c.exposure.is_finite() && c.exposure > 0.0, "forward_camera.exposure", "must be positive")?;
-        check(c.rate_hz.is_finite() && c.rate_hz > 0.0 && c.rate_hz <= 200.0, "forward_camera.rate_hz", "must lie in (0, 200] Hz")?;
-        check(c.latency_s.is_finite() && (0.0..=0.2).contains(&c.latency_s), "forward_camera.latency_s", "must lie in [0, 0.2] s (the estimator keeps 0.25 s)")?;
+        check(
+            c.rate_hz.is_finite() && c.rate_hz > 0.0 && c.rate_hz <= 200.0,
+            "forward_camera.rate_hz",
+            "must lie in (0, 200] Hz",
+        )?;
+        check(
+            c.latency_s.is_finite() && (0.0..=0.2).contains(&c.latency_s),
+            "forward_camera.latency_s",
+            "must lie in [0, 0.2] s (the estimator keeps 0.25 s)",
+        )?;
         check(
             c.latency_jitter_s.is_finite() && c.latency_jitter_s >= 0.0 && c.latency_jitter_s <= c.latency_s,
             "forward_camera.latency_jitter_s",
             "must lie in [0, latency_s]",
         )?;
-        check(c.analytic_noise_px.is_finite() && c.analytic_noise_px >= 0.0, "forward_camera.analytic_noise_px", "must be >= 0")?;
+        check(
+            c.analytic_noise_px.is_finite() && c.analytic_noise_px >= 0.0,
+            "forward_camera.analytic_noise_px",
+            "must be >= 0",
+        )?;
         let m = &self.model;
-        check(m.motor_time_constant_s.is_finite() && m.motor_time_constant_s > 0.0, "model.motor_time_constant_s", "must be positive")?;
-        check(m.linear_drag_n_s_per_m.is_finite() && m.linear_drag_n_s_per_m >= 0.0, "model.linear_drag_n_s_per_m", "must be >= 0")?;
+        check(
+            m.motor_time_constant_s.is_finite() && m.motor_time_constant_s > 0.0,
+            "model.motor_time_constant_s",
+            "must be positive",
+        )?;
+        check(
+            m.linear_drag_n_s_per_m.is_finite() && m.linear_drag_n_s_per_m >= 0.0,
+            "model.linear_drag_n_s_per_m",
+            "must be >= 0",
+        )?;
         check(
             m.physics_step_s.is_finite() && m.physics_step_s > 0.0 && m.physics_step_s <= 0.001,
             "model.physics_step_s",
             "must lie in (0, 0.001] s",
         )?;
         check(finite(&m.start_position_m), "model.start_position_m", "must be finite")?;
-        check(m.start_position_m[1] > 0.2, "model.start_position_m", "must be at least 0.2 m from the wall (y > 0.2)")?;
-        check(m.start_yaw_deg.is_finite() && m.start_yaw_deg.abs() <= 45.0, "model.start_yaw_deg", "must lie within +-45 deg")?;
+        check(
+            m.start_position_m[1] > 0.2,
+            "model.start_position_m",
+            "must be at least 0.2 m from the wall (y > 0.2)",
+        )?;
+        check(
+            m.start_yaw_deg.is_finite() && m.start_yaw_deg.abs() <= 45.0,
+            "model.start_yaw_deg",
+            "must lie within +-45 deg",
+        )?;
         let steps_per = |hz: f64| 1.0 / (hz * m.physics_step_s);
         let whole = |x: f64| (x - x.round()).abs() < 1e-6 && x >= 1.0;
         let i = &self.imu;
-        check(i.rate_hz.is_finite() && whole(steps_per(i.rate_hz)), "imu.rate_hz", "must divide the physics rate")?;
+        check(
+            i.rate_hz.is_finite() && whole(steps_per(i.rate_hz)),
+            "imu.rate_hz",
+            "must divide the physics rate",
+        )?;
         for (name, v) in [
             ("imu.gyro_noise_density", i.gyro_noise_density),
             ("imu.accel_noise_density", i.accel_noise_density),
@@ -482,24 +514,50 @@ impl Scenario {
         ] {
             check(v.is_finite() && v >= 0.0, name, "must be >= 0")?;
         }
-        check(i.mag_rate_hz.is_finite() && i.mag_rate_hz > 0.0 && i.mag_rate_hz <= i.rate_hz, "imu.mag_rate_hz", "must lie in (0, imu.rate_hz]")?;
-        check(finite(&i.mag_field_world) && i.mag_field_world.iter().any(|v| *v != 0.0), "imu.mag_field_world", "must be finite and non-zero")?;
+        check(
+            i.mag_rate_hz.is_finite() && i.mag_rate_hz > 0.0 && i.mag_rate_hz <= i.rate_hz,
+            "imu.mag_rate_hz",
+            "must lie in (0, imu.rate_hz]",
+        )?;
+        check(
+            finite(&i.mag_field_world) && i.mag_field_world.iter().any(|v| *v != 0.0),
+            "imu.mag_field_world",
+            "must be finite and non-zero",
+        )?;
         let l = &self.link;
-        check(l.latency_s.is_finite() && (0.0..=0.5).contains(&l.latency_s), "link.latency_s", "must lie in [0, 0.5] s")?;
+        check(
+            l.latency_s.is_finite() && (0.0..=0.5).contains(&l.latency_s),
+            "link.latency_s",
+            "must lie in [0, 0.5] s",
+        )?;
         check(l.heartbeat_hz.is_finite() && l.heartbeat_hz > 0.0, "link.heartbeat_hz", "must be positive")?;
         let mi = &self.mission;
-        check(mi.control_rate_hz.is_finite() && whole(steps_per(mi.control_rate_hz)), "mission.control_rate_hz", "must divide the physics rate")?;
+        check(
+            mi.control_rate_hz.is_finite() && whole(steps_per(mi.control_rate_hz)),
+            "mission.control_rate_hz",
+            "must divide the physics rate",
+        )?;
         check(
             mi.control_rate_hz >= 100.0 && mi.control_rate_hz <= i.rate_hz,
             "mission.control_rate_hz",
             "must lie in [100 Hz, imu.rate_hz]",
         )?;
-        for (name, v) in [("mission.arm_at_s", mi.arm_at_s), ("mission.takeoff_at_s", mi.takeoff_at_s), ("mission.track_after_hover_s", mi.track_after_hover_s)] {
+        for (name, v) in [
+            ("mission.arm_at_s", mi.arm_at_s),
+            ("mission.takeoff_at_s", mi.takeoff_at_s),
+            ("mission.track_after_hover_s", mi.track_after_hover_s),
+        ] {
             check(v.is_finite() && v >= 0.0, name, "must be >= 0")?;
         }
         check(mi.takeoff_at_s >= mi.arm_at_s, "mission.takeoff_at_s", "must not come before arm_at_s")?;
-        check(mi.max_duration_s.is_finite() && mi.max_duration_s > 0.0, "mission.max_duration_s", "must be positive")?;
-        self.flight_params().validate().map_err(|e| anyhow::anyhow!("invalid value of `{}`: {}", e.field, e.problem))?;
+        check(
+            mi.max_duration_s.is_finite() && mi.max_duration_s > 0.0,
+            "mission.max_duration_s",
+            "must be positive",
+        )?;
+        self.flight_params()
+            .validate()
+            .map_err(|e| anyhow::anyhow!("invalid value of `{}`: {}", e.field, e.problem))?;
         Ok(())
     }
 

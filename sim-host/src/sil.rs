@@ -192,7 +192,8 @@ impl Sil {
         let yaw = geometry::deg(m.start_yaw_deg as f32);
         let r0 = Attitude::new(0.0, 0.0, yaw).world_from_body();
         let q0 = geometry::Quat::from_mat3(&r0);
-        let quad = Quadrotor::new(params, m.start_position_m, [q0.w as f64, q0.x as f64, q0.y as f64, q0.z as f64]);
+        let quad =
+            Quadrotor::new(params, m.start_position_m, [q0.w as f64, q0.x as f64, q0.y as f64, q0.z as f64]);
         let stack = FlightStack::new(scenario.flight_config()).map_err(|e| anyhow::anyhow!("{e}"))?;
         let dt_us = (m.physics_step_s * 1e6).round() as u64;
         let every = |hz: f64| ((1e6 / hz) / dt_us as f64).round() as u64;
@@ -299,13 +300,20 @@ impl Sil {
                 let target = self.scenario.line_target();
                 let sigma = self.scenario.forward_camera.analytic_noise_px;
                 let rng = &mut self.edge_rng;
-                project_observation(&cam, &target, &r_wc.transpose(), center, 8.0, 2.0, || (sigma * rng.normal()) as f32)
+                project_observation(&cam, &target, &r_wc.transpose(), center, 8.0, 2.0, || {
+                    (sigma * rng.normal()) as f32
+                })
             }
         };
         let lat = self.scenario.forward_camera.clone();
-        let jitter = if lat.latency_jitter_s > 0.0 { self.link_rng.range(-lat.latency_jitter_s, lat.latency_jitter_s) } else { 0.0 };
+        let jitter = if lat.latency_jitter_s > 0.0 {
+            self.link_rng.range(-lat.latency_jitter_s, lat.latency_jitter_s)
+        } else {
+            0.0
+        };
         let deliver = self.t_us + ((lat.latency_s + jitter).max(0.0) * 1e6).round() as u64;
-        let msg = VisionMeasurement { capture_time_us: self.t_us, frame_seq: self.frame_index as u32, observation };
+        let msg =
+            VisionMeasurement { capture_time_us: self.t_us, frame_seq: self.frame_index as u32, observation };
         self.send(deliver, Uplink::Vision(msg));
         self.frame_index += 1;
         self.stats.frames += 1;
@@ -330,7 +338,11 @@ impl Sil {
                 self.sent[2] = true;
                 cmd = Some(Command::StartTracking);
             }
-        } else if !self.sent[3] && self.sent[2] && mi.land_when_done && mode == Some(FlightMode::Hover) && self.tracking_since.is_some()
+        } else if !self.sent[3]
+            && self.sent[2]
+            && mi.land_when_done
+            && mode == Some(FlightMode::Hover)
+            && self.tracking_since.is_some()
         {
             self.sent[3] = true;
             cmd = Some(Command::Land);

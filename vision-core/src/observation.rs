@@ -174,19 +174,47 @@ pub fn project_observation(
             continue;
         }
         let (p1, p2) = (target.corner(ca), target.corner(cb));
-        // Sample densely in 3-D, keep one point per `spacing_px` of image length.
-        const N: usize = 4096;
-        let mut pts = [Vec2::ZERO; 512];
-        let mut n = 0;
-        let mut last: Option<Vec2> = None;
-        for i in 0..N {
-            let t = (i as f32 + 0.5) / N as f32;
-            let Some((nrm, px)) = project(p1 + (p2 - p1) * t) else { continue };
-            if last.is_some_and(|l| (px - l).norm() < spacing_px) {
+        let at = |t: f32| project(p1 + (p2 - p1) * t);
+        // Visible interval of the edge: a coarse scan, then bisection on each boundary.
+        const COARSE: usize = 64;
+        let mut first = None;
+        let mut last = None;
+        for i in 0..=COARSE {
+            if at(i as f32 / COARSE as f32).is_some() {
+                first.get_or_insert(i);
+                last = Some(i);
+            }
+        }
+        let (Some(first), Some(last)) = (first, last) else {
+            if is_end {
                 continue;
             }
-            last = Some(px);
-            if n < pts.len() {
+            return None;
+        };
+        let refine = |mut inside: f32, mut outside: f32| {
+            for _ in 0..20 {
+                let m = 0.5 * (inside + outside);
+                if at(m).is_some() { inside = m } else { outside = m }
+            }
+            inside
+        };
+        let t0 = if first == 0 {
+            0.0
+        } else {
+            refine(first as f32 / COARSE as f32, (first - 1) as f32 / COARSE as f32)
+        };
+        let t1 = if last == COARSE {
+            1.0
+        } else {
+            refine(last as f32 / COARSE as f32, (last + 1) as f32 / COARSE as f32)
+        };
+        let (Some((_, a)), Some((_, b))) = (at(t0), at(t1)) else { continue };
+        let mut pts = [Vec2::ZERO; 512];
+        let count = (((b - a).norm() / spacing_px.max(0.1)) as usize + 1).clamp(2, pts.len());
+        let mut n = 0;
+        for i in 0..count {
+            let t = t0 + (t1 - t0) * (i as f32 + 0.5) / count as f32;
+            if let Some((nrm, _)) = at(t) {
                 pts[n] = nrm;
                 n += 1;
             }

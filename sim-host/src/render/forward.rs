@@ -316,7 +316,9 @@ impl ForwardRenderer {
                 u0 = end;
                 a = bnd;
             }
-            for ((((i, g), &x), &b), &wf) in idx.iter_mut().zip(gain.iter_mut()).zip(&xs).zip(&bs).zip(&on_wall) {
+            for ((((i, g), &x), &b), &wf) in
+                idx.iter_mut().zip(gain.iter_mut()).zip(&xs).zip(&bs).zip(&on_wall)
+            {
                 let b_max = st.floor_max + wf * (st.wall_max - st.floor_max);
                 let row0 = st.wall_rows_f * (1.0 - wf);
                 // Clamp in the float domain (max() maps NaN to the bound), then convert branch-free.

@@ -1,0 +1,202 @@
+//! `sim-host fly`: a software-in-the-loop flight and its outputs (summary, trajectory, plots).
+use crate::imageio::write_png_rgb;
+use crate::plot::{Plot, Series, render};
+use crate::scenario::Scenario;
+use crate::sil::{CameraMode, Record, RunStats, Sil};
+use anyhow::{Context, Result};
+use serde_json::{Value, json};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What to fly.
+#[derive(Clone, Debug)]
+pub struct FlyOptions {
+    /// The scenario.
+    pub scenario: Scenario,
+    /// Seed of every noise stream.
+    pub seed: u64,
+    /// Longest simulated time (s); the scenario's limit when `None`.
+    pub duration_s: Option<f64>,
+    /// Forward camera simulation.
+    pub camera: CameraMode,
+    /// Output directory.
+    pub out: PathBuf,
+    /// Write the PNG plots.
+    pub plots: bool,
+}
+
+/// The outcome of a flight.
+#[derive(Clone, Debug)]
+pub struct FlyResult {
+    /// Measurements of the run.
+    pub stats: RunStats,
+    /// Wall-clock time of the simulation (s).
+    pub wall_time_s: f64,
+    /// `summary.json`'s content.
+    pub summary: Value,
+    /// Files written.
+    pub files: Vec<PathBuf>,
+}
+
+fn r6(v: f64) -> Value {
+    if v.is_finite() { json!((v * 1e6).round() / 1e6) } else { Value::Null }
+}
+
+/// The largest tilt the laws can command: the position terms' bound plus the trajectory's feed-forward and the
+/// trims (deg).
+pub fn tilt_bound_deg(s: &Scenario) -> f64 {
+    let g = &s.gains;
+    let ff = (s.trajectory.accel_m_s2 as f64 / control_core::GRAVITY as f64).atan();
+    let per_axis =
+        |a: &control_core::params::SaturatedAxisGains| a.tilt_bound_rad() as f64 + a.trim_limit_rad as f64;
+    let roll = per_axis(&g.roll) + ff;
+    let pitch = per_axis(&g.pitch);
+    // Both axes at their bounds at once.
+    (roll.tan().powi(2) + pitch.tan().powi(2)).sqrt().atan().to_degrees()
+}
+
+/// Flies the scenario; `progress(sim_time_s, end_s)` is called about every 0.1 s of simulated time.
+pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyResult> {
+    std::fs::create_dir_all(&opts.out).with_context(|| format!("cannot create {}", opts.out.display()))?;
+    let end = opts.duration_s.unwrap_or(opts.scenario.mission.max_duration_s);
+    let mut sil = Sil::new(&opts.scenario, opts.seed, opts.camera)?;
+    let t0 = Instant::now();
+    let stats = sil.run(end, |t| progress(t, end));
+    let wall = t0.elapsed().as_secs_f64();
+    let mut files = Vec::new();
+    let csv = opts.out.join("trajectory.csv");
+    write_trajectory_csv(&csv, sil.records())?;
+    files.push(csv);
+    if opts.plots {
+        files.extend(write_plots(&opts.out, sil.records(), &stats)?);
+    }
+    let summary = summary_json(opts, &stats, wall, &files);
+    let path = opts.out.join("summary.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    files.push(path);
+    Ok(FlyResult { stats, wall_time_s: wall, summary, files })
+}
+
+/// The content of `summary.json`.
+pub fn summary_json(opts: &FlyOptions, st: &RunStats, wall: f64, files: &[PathBuf]) -> Value {
+    let xyz = |v: [f64; 3]| json!({"x": r6(v[0]), "y": r6(v[1]), "z": r6(v[2])});
+    json!({
+        "scenario": opts.scenario.name,
+        "seed": opts.seed,
+        "camera": opts.camera.name(),
+        "sim_time_s": r6(st.sim_time_s),
+        "wall_time_s": r6(wall),
+        "real_time_factor": r6(if wall > 0.0 { st.sim_time_s / wall } else { f64::NAN }),
+        "crashed": st.crashed,
+        "crash_reason": st.crash_reason,
+        "rms_error_m": xyz(st.rms_error_m),
+        "estimate_rms_error_m": xyz(st.estimate_rms_error_m),
+        "max_tilt_deg": r6(st.max_tilt_deg),
+        "tilt_bound_deg": r6(tilt_bound_deg(&opts.scenario)),
+        "tracking_s": r6(st.tracking_s),
+        "passes_done": st.passes_done,
+        "landed": st.landed,
+        "max_touchdown_speed_m_s": r6(st.max_touchdown_speed_m_s),
+        "vision": {
+            "frames": st.frames,
+            "solved": st.frames_solved,
+            "no_target": st.frames_no_target,
+            "rejected": st.frames_rejected,
+        },
+        "failsafes": st.failsafes,
+        "modes": st.modes.iter().map(|(t, m)| json!({"t_s": r6(*t), "mode": m})).collect::<Vec<_>>(),
+        "definitions": {
+            "rms_error_m": "true minus desired position over the tracking phase",
+            "estimate_rms_error_m": "estimated minus true position over the tracking phase",
+            "max_tilt_deg": "largest true tilt while airborne",
+        },
+        "files": files.iter().filter_map(|f| f.file_name()).map(|f| f.to_string_lossy().to_string()).collect::<Vec<_>>(),
+    })
+}
+
+/// Writes the recorded samples as CSV (100 Hz; deterministic text for a given seed).
+pub fn write_trajectory_csv(path: &Path, records: &[Record]) -> Result<()> {
+    let mut s = String::with_capacity(records.len() * 400);
+    s.push_str(
+        "t_s,true_x_m,true_y_m,true_z_m,true_vx_m_s,true_vy_m_s,true_vz_m_s,true_roll_deg,true_pitch_deg,true_yaw_deg,\
+         est_x_m,est_y_m,est_z_m,est_vx_m_s,est_vy_m_s,est_vz_m_s,est_roll_deg,est_pitch_deg,est_yaw_deg,\
+         des_x_m,des_y_m,des_z_m,des_vx_m_s,des_vy_m_s,des_vz_m_s,\
+         motor_cmd1_rad_s,motor_cmd2_rad_s,motor_cmd3_rad_s,motor_cmd4_rad_s,motor1_rad_s,motor2_rad_s,motor3_rad_s,motor4_rad_s,\
+         mode,fix_age_s\n",
+    );
+    for r in records {
+        let _ = write!(s, "{:.3}", r.t_s);
+        for v in r.true_p.iter().chain(&r.true_v) {
+            let _ = write!(s, ",{v:.6}");
+        }
+        for v in &r.true_att {
+            let _ = write!(s, ",{:.4}", v.to_degrees());
+        }
+        for v in r.est_p.iter().chain(&r.est_v) {
+            let _ = write!(s, ",{v:.6}");
+        }
+        for v in &r.est_att {
+            let _ = write!(s, ",{:.4}", (*v as f64).to_degrees());
+        }
+        for v in r.des_p.iter().chain(&r.des_v) {
+            let _ = write!(s, ",{v:.6}");
+        }
+        for v in &r.motor_cmd {
+            let _ = write!(s, ",{v:.2}");
+        }
+        for v in &r.motor {
+            let _ = write!(s, ",{v:.2}");
+        }
+        let age = if r.fix_age_s.is_finite() { format!("{:.3}", r.fix_age_s) } else { String::new() };
+        let _ = writeln!(s, ",{:?},{}", r.mode, age);
+    }
+    std::fs::write(path, s).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Writes x, y, z and the horizontal velocities over time (truth, estimate, desired), like the paper's
+/// figures 7-11 with the truth beside every estimate.
+pub fn write_plots(dir: &Path, records: &[Record], st: &RunStats) -> Result<Vec<PathBuf>> {
+    let t: Vec<f64> = records.iter().map(|r| r.t_s).collect();
+    let col = |f: &dyn Fn(&Record) -> f64| records.iter().map(f).collect::<Vec<f64>>();
+    let track = records
+        .iter()
+        .filter(|r| r.mode == control_core::FlightMode::Tracking)
+        .map(|r| r.t_s)
+        .collect::<Vec<_>>();
+    let spans = match (track.first(), track.last()) {
+        (Some(a), Some(b)) => vec![(*a, *b, "tracking")],
+        _ => vec![],
+    };
+    let _ = st;
+    let panels: [(&str, &str, &str, usize, bool); 5] = [
+        ("x.png", "x: along the line (paper Fig. 8)", "x (m)", 0, false),
+        ("y.png", "y: distance to the wall (paper Fig. 7)", "y (m)", 1, false),
+        ("z.png", "z: altitude (paper Fig. 9)", "z (m)", 2, false),
+        ("vx.png", "x velocity (paper Fig. 10)", "vx (m/s)", 0, true),
+        ("vy.png", "y velocity (paper Fig. 11)", "vy (m/s)", 1, true),
+    ];
+    let mut out = Vec::new();
+    for (file, title, ylabel, k, vel) in panels {
+        let truth = col(&|r| if vel { r.true_v[k] } else { r.true_p[k] });
+        let est = col(&|r| (if vel { r.est_v[k] } else { r.est_p[k] }) as f64);
+        let des = col(&|r| (if vel { r.des_v[k] } else { r.des_p[k] }) as f64);
+        let img = render(&Plot {
+            title,
+            x_label: "time (s)",
+            y_label: ylabel,
+            series: vec![
+                Series { name: "desired", color: [110, 110, 110], xs: &t, ys: &des, dashed: true },
+                Series { name: "truth", color: [30, 90, 200], xs: &t, ys: &truth, dashed: false },
+                Series { name: "estimate", color: [220, 60, 30], xs: &t, ys: &est, dashed: false },
+            ],
+            spans: spans.clone(),
+            size: (1200, 420),
+        });
+        let path = dir.join(file);
+        write_png_rgb(&path, &img)?;
+        out.push(path);
+    }
+    Ok(out)
+}

@@ -1,0 +1,86 @@
+//! `sim-host fly`, run as a user would.
+use serde_json::Value;
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_sim-host"))
+}
+
+#[test]
+fn fly_writes_summary_trajectory_and_plots() {
+    let out = std::env::temp_dir().join(format!("sim-host-fly-{}", std::process::id()));
+    let r = bin()
+        .args(["fly", "--camera", "analytic", "--seed", "4", "--duration", "60", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(r.status.code(), Some(0), "{}", String::from_utf8_lossy(&r.stderr));
+    let s: Value = serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    for key in [
+        "scenario",
+        "seed",
+        "sim_time_s",
+        "wall_time_s",
+        "real_time_factor",
+        "crashed",
+        "rms_error_m",
+        "estimate_rms_error_m",
+        "max_tilt_deg",
+    ] {
+        assert!(s.get(key).is_some(), "summary.json lacks {key}: {s}");
+    }
+    assert_eq!(s["scenario"], "paper");
+    assert_eq!(s["seed"], 4);
+    assert_eq!(s["crashed"], false);
+    for axis in ["x", "y", "z"] {
+        assert!(s["rms_error_m"][axis].as_f64().unwrap() < 0.05);
+        assert!(s["estimate_rms_error_m"][axis].as_f64().unwrap() < 0.02);
+    }
+    let csv = std::fs::read_to_string(out.join("trajectory.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header = lines.next().unwrap();
+    assert!(header.starts_with("t_s,true_x_m,true_y_m,true_z_m"));
+    let cols = header.split(',').count();
+    assert!(lines.clone().count() > 4000);
+    assert!(lines.all(|l| l.split(',').count() == cols));
+    for p in ["x.png", "y.png", "z.png", "vx.png", "vy.png"] {
+        let bytes = std::fs::read(out.join(p)).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG", "{p}");
+    }
+    let stderr = String::from_utf8_lossy(&r.stderr);
+    assert!(stderr.contains("x.png"), "the command says where the plots are: {stderr}");
+}
+
+#[test]
+fn fly_rejects_bad_scenarios_and_options_with_exit_1() {
+    let dir = std::env::temp_dir().join(format!("sim-host-fly-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let base = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/paper.toml")).unwrap();
+    let cases = [
+        (base.replace("mass_kg = 0.38", "mass_kg = 0.38\nmass_lb = 1.0"), "mass_lb"),
+        (
+            base.replacen("k = [178.25, 20.5, 63.73225, 56.08439]", "k = [178.25, 20.5, 63.73225, 560.0]", 1),
+            "gains.roll",
+        ),
+        (base.replace("y_d_m = 1.30", "y_d_m = -1.0"), "trajectory.y_d_m"),
+        (base.replace("latency_s = 0.05", "latency_s = 0.9"), "forward_camera.latency_s"),
+    ];
+    for (i, (text, field)) in cases.iter().enumerate() {
+        let path = dir.join(format!("bad{i}.toml"));
+        std::fs::write(&path, text).unwrap();
+        let r = bin()
+            .args(["fly", "--camera", "analytic", "--out"])
+            .arg(dir.join("o"))
+            .arg("--scenario")
+            .arg(&path)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(1), "{field}: {err}");
+        assert!(err.contains(field), "the error should name `{field}`: {err}");
+    }
+    let r = bin().args(["fly", "--camera", "sideways", "--out", "x"]).output().unwrap();
+    assert_eq!(r.status.code(), Some(1));
+    let r = bin().args(["fly", "--duration", "-3", "--out", "x"]).output().unwrap();
+    assert_eq!(r.status.code(), Some(1));
+}
