@@ -552,3 +552,6 @@ impl ControlCore {
         ControlOutputs { motors_rad_s: self.motors, status, estimate: est, setpoint: sp }
     }
 }
+
+#[cfg(test)]
+mod failsafe_tests;

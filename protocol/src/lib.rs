@@ -11,6 +11,8 @@
 #![warn(missing_docs)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
+pub mod frame;
+
 use control_core::estimator::StateEstimate;
 use control_core::laws::Setpoint;
 use control_core::{Command, CommandResult, Failsafe, FlightMode};

@@ -1,0 +1,282 @@
+//! Host tests of the modes and of every failsafe transition.
+//!
+//! The harness moves a kinematic vehicle toward the flight code's setpoint (first order, 0.3 s), synthesises a
+//! consistent IMU (level, specific force `a + g`), and delivers vision fixes and link messages as scripted,
+//! so that the mode logic is exercised without the full simulator.
+use super::*;
+use crate::estimator::{ImuSample, PositionFix};
+
+struct Harness {
+    core: ControlCore,
+    t_us: u64,
+    p: Vec3,
+    v: Vec3,
+    tilt_accel: Vec3,
+    imu_on: bool,
+    imu_nan: bool,
+    vision_on: bool,
+    link_on: bool,
+    out: Option<ControlOutputs>,
+}
+
+impl Harness {
+    fn new() -> Self {
+        let params = FlightParams::paper();
+        let home = Vec3::from_array(params.home_m);
+        Self {
+            core: ControlCore::new(params).unwrap(),
+            t_us: 0,
+            p: home,
+            v: Vec3::ZERO,
+            tilt_accel: Vec3::ZERO,
+            imu_on: true,
+            imu_nan: false,
+            vision_on: true,
+            link_on: true,
+            out: None,
+        }
+    }
+
+    fn mode(&self) -> FlightMode {
+        self.out.map_or(FlightMode::Disarmed, |o| o.status.mode)
+    }
+
+    /// One 2 ms control period; `cmd` is delivered with it.
+    fn step(&mut self, cmd: Option<Command>) -> ControlOutputs {
+        let mut imu = [ImuSample::default(); 2];
+        let sp = self.out.map(|o| o.setpoint.position_m);
+        let airborne =
+            self.out.is_some_and(|o| o.status.mode.airborne() && o.motors_rad_s.iter().any(|w| *w > 0.0));
+        let mut acc;
+        for s in imu.iter_mut() {
+            self.t_us += 1000;
+            // Kinematic follower of the setpoint while flying; resting otherwise.
+            let v_before = self.v;
+            if let (true, Some(target)) = (airborne, sp) {
+                let a = (target - self.p) * (1.0 / 0.09) - self.v * (2.0 / 0.3);
+                self.v += a * 0.001;
+                self.p += self.v * 0.001;
+                if self.p.z < 0.06 {
+                    self.p.z = 0.06;
+                    self.v = Vec3::ZERO;
+                }
+            } else {
+                self.v = Vec3::ZERO;
+            }
+            // The accelerometer feels the actual change of velocity (the floor's reaction included).
+            acc = (self.v - v_before) * 1000.0;
+            let f = acc + Vec3::new(0.0, 0.0, GRAVITY) + self.tilt_accel;
+            let bad = if self.imu_nan { f32::NAN } else { 0.0 };
+            *s = ImuSample { time_us: self.t_us, gyro_rad_s: [bad, 0.0, 0.0], accel_m_s2: f.to_array() };
+        }
+        let fix =
+            (self.vision_on && self.t_us > 50_000 && (self.t_us / 2000) % 17 == 0).then(|| PositionFix {
+                capture_time_us: self.t_us - 40_000,
+                position_m: self.p,
+                position_std_m: Vec3::new(0.005, 0.005, 0.005),
+                x_observed: true,
+                yaw_rad: 0.0,
+                yaw_std_rad: 0.002,
+            });
+        let imu_slice: &[ImuSample] = if self.imu_on { &imu } else { &[] };
+        let out = self.core.step(&ControlInputs {
+            time_us: self.t_us,
+            imu: imu_slice,
+            mag: None,
+            fix,
+            flow: None,
+            command: cmd,
+            link_message: self.link_on,
+        });
+        self.out = Some(out);
+        out
+    }
+
+    fn run(&mut self, seconds: f32) {
+        for _ in 0..(seconds * 500.0) as usize {
+            self.step(None);
+        }
+    }
+
+    fn run_until(&mut self, mode: FlightMode, max_s: f32) {
+        for _ in 0..(max_s * 500.0) as usize {
+            if self.step(None).status.mode == mode {
+                return;
+            }
+        }
+        panic!("did not reach {mode:?} within {max_s} s (mode {:?})", self.mode());
+    }
+
+    fn command(&mut self, c: Command) -> Option<CommandResult> {
+        self.step(Some(c)).status.last_command
+    }
+
+    /// Armed, airborne and hovering.
+    fn hovering() -> Self {
+        let mut h = Harness::new();
+        h.run(1.0);
+        assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
+        assert_eq!(h.command(Command::TakeOff), Some(CommandResult::Accepted(Command::TakeOff)));
+        h.run_until(FlightMode::Hover, 20.0);
+        h
+    }
+}
+
+#[test]
+fn arming_requires_level_aligned_and_link() {
+    let mut h = Harness::new();
+    h.step(None);
+    // Before 0.5 s of IMU: not aligned.
+    assert_eq!(
+        h.command(Command::Arm),
+        Some(CommandResult::Refused(Command::Arm, Refusal::SensorsUnhealthy))
+    );
+    h.run(1.0);
+    // Tilted by about 20 degrees.
+    let mut t = Harness::new();
+    t.tilt_accel = Vec3::new(0.0, 3.4, -0.6);
+    t.run(2.0);
+    assert_eq!(t.command(Command::Arm), Some(CommandResult::Refused(Command::Arm, Refusal::NotLevel)));
+    // No link.
+    h.link_on = false;
+    h.run(1.5);
+    assert_eq!(h.command(Command::Arm), Some(CommandResult::Refused(Command::Arm, Refusal::NoLink)));
+    h.link_on = true;
+    // Commands that need another mode are refused.
+    assert_eq!(
+        h.command(Command::TakeOff),
+        Some(CommandResult::Refused(Command::TakeOff, Refusal::WrongMode))
+    );
+    assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
+    let out = h.step(None);
+    assert_eq!(out.status.mode, FlightMode::Armed);
+    assert!(
+        out.motors_rad_s.iter().all(|w| *w == FlightParams::paper().vehicle.motor_speed_min_rad_s),
+        "idle"
+    );
+    assert_eq!(h.command(Command::Arm), Some(CommandResult::Refused(Command::Arm, Refusal::WrongMode)));
+}
+
+#[test]
+fn disarm_stops_the_motors_in_any_mode() {
+    let mut h = Harness::hovering();
+    assert!(h.step(None).motors_rad_s.iter().all(|w| *w > 100.0));
+    assert_eq!(h.command(Command::Disarm), Some(CommandResult::Accepted(Command::Disarm)));
+    let out = h.step(None);
+    assert_eq!(out.status.mode, FlightMode::Disarmed);
+    assert_eq!(out.motors_rad_s, [0.0; 4]);
+}
+
+#[test]
+fn mission_take_off_track_land() {
+    let mut h = Harness::hovering();
+    assert_eq!(h.command(Command::StartTracking), Some(CommandResult::Accepted(Command::StartTracking)));
+    h.run(3.0);
+    assert_eq!(h.mode(), FlightMode::Tracking);
+    assert_eq!(h.command(Command::StopTracking), Some(CommandResult::Accepted(Command::StopTracking)));
+    assert_eq!(h.mode(), FlightMode::Hover);
+    assert_eq!(h.command(Command::Land), Some(CommandResult::Accepted(Command::Land)));
+    h.run_until(FlightMode::Disarmed, 15.0);
+    assert_eq!(h.step(None).motors_rad_s, [0.0; 4]);
+    assert!(h.p.z < 0.1);
+}
+
+#[test]
+fn vision_lost_holds_then_lands() {
+    let mut h = Harness::hovering();
+    h.vision_on = false;
+    h.run(0.45);
+    assert_eq!(h.mode(), FlightMode::Hover, "not before 0.5 s");
+    h.run_until(FlightMode::VisionHold, 0.2);
+    assert_eq!(h.out.unwrap().status.failsafe, Some(Failsafe::VisionLost));
+    // Holding: motors running, altitude kept.
+    let z = h.p.z;
+    h.run(2.5);
+    assert_eq!(h.mode(), FlightMode::VisionHold);
+    assert!((h.p.z - z).abs() < 0.1);
+    h.run_until(FlightMode::Landing, 1.0);
+    assert_eq!(h.out.unwrap().status.failsafe, Some(Failsafe::VisionLostLanding));
+    h.run_until(FlightMode::Disarmed, 20.0);
+}
+
+#[test]
+fn vision_back_during_hold_returns_to_hover() {
+    let mut h = Harness::hovering();
+    h.command(Command::StartTracking);
+    h.run(1.0);
+    h.vision_on = false;
+    h.run_until(FlightMode::VisionHold, 1.0);
+    h.vision_on = true;
+    h.run_until(FlightMode::Hover, 1.0);
+}
+
+#[test]
+fn link_lost_lands() {
+    let mut h = Harness::hovering();
+    h.command(Command::StartTracking);
+    h.run(1.0);
+    h.link_on = false;
+    h.run(0.9);
+    assert_eq!(h.mode(), FlightMode::Tracking, "not before 1 s");
+    h.run_until(FlightMode::Landing, 0.3);
+    assert_eq!(h.out.unwrap().status.failsafe, Some(Failsafe::LinkLost));
+    h.run_until(FlightMode::Disarmed, 20.0);
+}
+
+#[test]
+fn imu_silence_stops_the_motors_and_latches() {
+    let mut h = Harness::hovering();
+    h.imu_on = false;
+    h.run(0.06);
+    let out = h.step(None);
+    assert_eq!(out.status.mode, FlightMode::Emergency);
+    assert_eq!(out.status.failsafe, Some(Failsafe::ImuFault));
+    assert_eq!(out.motors_rad_s, [0.0; 4]);
+    // Latched: arming refused until disarmed.
+    h.imu_on = true;
+    h.run(1.0);
+    assert_eq!(h.command(Command::Arm), Some(CommandResult::Refused(Command::Arm, Refusal::WrongMode)));
+    h.command(Command::Disarm);
+    assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
+}
+
+#[test]
+fn non_finite_imu_samples_are_rejected_then_fault() {
+    let mut h = Harness::hovering();
+    h.imu_nan = true;
+    let out = h.step(None);
+    assert_eq!(out.status.imu_rejected, 2);
+    assert!(out.motors_rad_s.iter().all(|w| w.is_finite()));
+    h.run(0.1);
+    let out = h.step(None);
+    assert_eq!(out.status.mode, FlightMode::Emergency);
+    assert_eq!(out.motors_rad_s, [0.0; 4]);
+}
+
+#[test]
+fn excessive_tilt_stops_the_motors() {
+    let mut h = Harness::hovering();
+    // The IMU reports a large, persistent rotation rate: the attitude runs away past the crash limit.
+    for _ in 0..2000 {
+        let mut imu = [ImuSample::default(); 2];
+        for s in imu.iter_mut() {
+            h.t_us += 1000;
+            *s = ImuSample { time_us: h.t_us, gyro_rad_s: [3.0, 0.0, 0.0], accel_m_s2: [0.0, 0.0, GRAVITY] };
+        }
+        let out = h.core.step(&ControlInputs {
+            time_us: h.t_us,
+            imu: &imu,
+            mag: None,
+            fix: None,
+            flow: None,
+            command: None,
+            link_message: true,
+        });
+        if out.status.mode == FlightMode::Emergency {
+            assert_eq!(out.status.failsafe, Some(Failsafe::ExcessiveTilt));
+            assert_eq!(out.motors_rad_s, [0.0; 4]);
+            return;
+        }
+    }
+    panic!("no emergency");
+}
