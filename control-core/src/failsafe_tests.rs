@@ -70,13 +70,15 @@ impl Harness {
             *s = ImuSample { time_us: self.t_us, gyro_rad_s: [bad, 0.0, 0.0], accel_m_s2: f.to_array() };
         }
         let fix =
-            (self.vision_on && self.t_us > 50_000 && (self.t_us / 2000) % 17 == 0).then(|| PositionFix {
-                capture_time_us: self.t_us - 40_000,
-                position_m: self.p,
-                position_std_m: Vec3::new(0.005, 0.005, 0.005),
-                x_observed: true,
-                yaw_rad: 0.0,
-                yaw_std_rad: 0.002,
+            (self.vision_on && self.t_us > 50_000 && (self.t_us / 2000).is_multiple_of(17)).then(|| {
+                PositionFix {
+                    capture_time_us: self.t_us - 40_000,
+                    position_m: self.p,
+                    position_std_m: Vec3::new(0.005, 0.005, 0.005),
+                    x_observed: true,
+                    yaw_rad: 0.0,
+                    yaw_std_rad: 0.002,
+                }
             });
         let imu_slice: &[ImuSample] = if self.imu_on { &imu } else { &[] };
         let out = self.core.step(&ControlInputs {

@@ -55,11 +55,12 @@ pub enum Command {
 }
 
 /// Flight mode.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FlightMode {
     /// Motors off.
+    #[default]
     Disarmed,
     /// On the ground, motors at idle.
     Armed,

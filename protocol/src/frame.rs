@@ -254,7 +254,7 @@ pub fn decode_raw<T: DeserializeOwned>(raw: &[u8]) -> Result<T, FrameError> {
         return Err(FrameError::UnknownVersion(body[0]));
     }
     match postcard::take_from_bytes::<T>(&body[1..]) {
-        Ok((msg, rest)) if rest.is_empty() => Ok(msg),
+        Ok((msg, [])) => Ok(msg),
         _ => Err(FrameError::Malformed),
     }
 }

@@ -1,0 +1,380 @@
+//! Board support: clocks, pins, sensors, speed controllers, the radio UART and the tick.
+//!
+//! Two variants, selected at build time:
+//!
+//! - **STM32F405 flight controller** (default): 8 MHz crystal, 168 MHz system clock; MPU-6000 on SPI1
+//!   (PA5/PA6/PA7, chip select PA4); HMC5883L and four BL-Ctrl speed controllers on I2C1 (PB8 SCL, PB9 SDA,
+//!   400 kHz); the radio modem on USART1 (PA9 TX, PA10 RX, 115200 baud).
+//! - **QEMU `netduinoplus2`** (`--features qemu`): QEMU models neither the RCC (clock setup that waits on ready
+//!   flags would hang) nor I2C, so the variant keeps the reset clock, has no sensors on the buses, feeds the flight
+//!   code a synthetic IMU at rest, and reports over semihosting after a fixed number of steps.
+//!
+//! Both share the UART queues (interrupt-driven, so that no byte is lost at 115200 baud while the loop runs)
+//! and the SysTick tick.
+use control_core::estimator::ImuSample;
+use core::cell::RefCell;
+use core::sync::atomic::{AtomicU32, Ordering};
+use cortex_m::interrupt::Mutex;
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m_rt::exception;
+use geometry::Vec3;
+use heapless::Deque;
+use stm32f4xx_hal::pac::{self, USART1, interrupt};
+use stm32f4xx_hal::prelude::*;
+use stm32f4xx_hal::serial::{Config as SerialConfig, Rx, RxListen, Serial, Tx, TxListen};
+
+/// Radio link baud rate.
+pub const BAUD: u32 = 115_200;
+
+static TICKS: AtomicU32 = AtomicU32::new(0);
+static RX_QUEUE: Mutex<RefCell<Deque<u8, 1024>>> = Mutex::new(RefCell::new(Deque::new()));
+static TX_QUEUE: Mutex<RefCell<Deque<u8, 2048>>> = Mutex::new(RefCell::new(Deque::new()));
+/// The radio UART's two halves, owned by the interrupt handler once started.
+type UartHalves = (Tx<USART1>, Rx<USART1>);
+static UART: Mutex<RefCell<Option<UartHalves>>> = Mutex::new(RefCell::new(None));
+static RX_OVERFLOW: AtomicU32 = AtomicU32::new(0);
+
+#[exception]
+fn SysTick() {
+    TICKS.fetch_add(1, Ordering::Release);
+}
+
+#[interrupt]
+fn USART1() {
+    cortex_m::interrupt::free(|cs| {
+        let mut uart = UART.borrow(cs).borrow_mut();
+        let Some((tx, rx)) = uart.as_mut() else { return };
+        while let Ok(b) = embedded_hal_nb::serial::Read::read(rx) {
+            if RX_QUEUE.borrow(cs).borrow_mut().push_back(b).is_err() {
+                RX_OVERFLOW.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        let mut q = TX_QUEUE.borrow(cs).borrow_mut();
+        match q.front() {
+            Some(&b) => {
+                if embedded_hal_nb::serial::Write::write(tx, b).is_ok() {
+                    q.pop_front();
+                }
+            }
+            None => tx.unlisten(),
+        }
+    });
+}
+
+fn start_uart(serial: Serial<USART1>) {
+    let (tx, mut rx) = serial.split();
+    rx.listen();
+    cortex_m::interrupt::free(|cs| UART.borrow(cs).replace(Some((tx, rx))));
+    pac::NVIC::unpend(pac::Interrupt::USART1);
+    #[allow(unsafe_code)]
+    // SAFETY: the handler only touches state behind critical sections, set up just above.
+    unsafe {
+        pac::NVIC::unmask(pac::Interrupt::USART1);
+    }
+}
+
+fn start_tick(mut syst: cortex_m::peripheral::SYST, core_hz: u32) {
+    syst.set_clock_source(SystClkSource::Core);
+    syst.set_reload(core_hz / 1000 - 1);
+    syst.clear_current();
+    syst.enable_interrupt();
+    syst.enable_counter();
+}
+
+/// Counters the loop keeps for reports.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RunStats {
+    /// Control steps run.
+    pub steps: u32,
+    /// Largest step cost (cycles).
+    pub max_cost: u32,
+    /// Sum of step costs (cycles).
+    pub sum_cost: u64,
+    /// IMU reads that failed.
+    pub imu_errors: u32,
+    /// Motor command writes that failed.
+    pub motor_errors: u32,
+    /// Link messages dropped because more than a step's worth arrived.
+    pub uplink_dropped: u32,
+    /// The flight mode after the last step.
+    pub mode: control_core::FlightMode,
+    /// The link decoder's counters.
+    pub link: protocol::frame::DecodeCounters,
+}
+
+impl RunStats {
+    /// Adds a step's cost.
+    pub fn record_step(&mut self, cost: u32) {
+        self.steps += 1;
+        self.max_cost = self.max_cost.max(cost);
+        self.sum_cost += cost as u64;
+    }
+}
+
+/// Stops here for good (the speed controllers stop their motors when commands stop coming).
+pub fn halt(why: &'static str) -> ! {
+    defmt::error!("halted: {}", why);
+    #[cfg(feature = "qemu")]
+    {
+        cortex_m_semihosting::hprintln!("halted: {}", why);
+        cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+    }
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+/// The board.
+pub struct Board {
+    last_tick: u32,
+    dwt: bool,
+    hw: Hardware,
+}
+
+impl Board {
+    /// Waits for the next 1 ms tick and returns its number (ticks are never skipped: a late loop catches up).
+    pub fn wait_tick(&mut self) -> u32 {
+        loop {
+            let now = TICKS.load(Ordering::Acquire);
+            if now != self.last_tick {
+                self.last_tick = self.last_tick.wrapping_add(1);
+                return self.last_tick;
+            }
+            cortex_m::asm::wfi();
+        }
+    }
+
+    /// One byte from the radio, if any arrived.
+    pub fn rx_byte(&mut self) -> Option<u8> {
+        cortex_m::interrupt::free(|cs| RX_QUEUE.borrow(cs).borrow_mut().pop_front())
+    }
+
+    /// Free space in the radio's transmit queue (bytes).
+    pub fn tx_free(&self) -> usize {
+        cortex_m::interrupt::free(|cs| {
+            let q = TX_QUEUE.borrow(cs).borrow();
+            q.capacity() - q.len()
+        })
+    }
+
+    /// Queues bytes for the radio; returns how many fitted.
+    pub fn tx_bytes(&mut self, bytes: &[u8]) -> usize {
+        cortex_m::interrupt::free(|cs| {
+            let mut q = TX_QUEUE.borrow(cs).borrow_mut();
+            let mut n = 0;
+            for &b in bytes {
+                if q.push_back(b).is_err() {
+                    break;
+                }
+                n += 1;
+            }
+            if let Some((tx, _)) = UART.borrow(cs).borrow_mut().as_mut() {
+                tx.listen();
+            }
+            n
+        })
+    }
+
+    /// A free-running cycle count for measuring the step's cost: the DWT cycle counter on the board; under QEMU
+    /// (whose DWT reads 0) the SysTick count, which counts the emulated CPU clock.
+    pub fn cycles(&self) -> u32 {
+        if self.dwt {
+            cortex_m::peripheral::DWT::cycle_count()
+        } else {
+            // SysTick counts down from its reload within each 1 ms tick; combine with the tick number.
+            let reload = cortex_m::peripheral::SYST::get_reload() + 1;
+            let val = cortex_m::peripheral::SYST::get_current();
+            TICKS.load(Ordering::Acquire).wrapping_mul(reload).wrapping_add(reload - 1 - val)
+        }
+    }
+}
+
+#[cfg(not(feature = "qemu"))]
+mod variant {
+    use super::*;
+    use core::cell::RefCell;
+    use drivers::SensorRotation;
+    use drivers::blctrl::{BlCtrl, DEFAULT_ADDRESSES};
+    use drivers::hmc5883l::Hmc5883l;
+    use drivers::mpu6000::Mpu6000;
+    use embedded_hal_bus::i2c::RefCellDevice;
+    use embedded_hal_bus::spi::{ExclusiveDevice, NoDelay};
+    use stm32f4xx_hal::gpio::{Output, PA4};
+    use stm32f4xx_hal::i2c::{I2c, Mode as I2cMode};
+    use stm32f4xx_hal::pac::{I2C1, SPI1};
+    use stm32f4xx_hal::rcc::Config;
+    use stm32f4xx_hal::spi::{Mode, Phase, Polarity, Spi};
+
+    type SharedI2c = RefCellDevice<'static, I2c<I2C1>>;
+
+    pub struct Hardware {
+        imu: Mpu6000<ExclusiveDevice<Spi<SPI1>, PA4<Output>, NoDelay>>,
+        mag: Option<Hmc5883l<SharedI2c>>,
+        esc: BlCtrl<SharedI2c>,
+    }
+
+    impl Board {
+        /// Clocks, pins, sensors, speed controllers, UART, tick.
+        pub fn init() -> Self {
+            let (Some(dp), Some(mut cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
+                halt("peripherals already taken")
+            };
+            let mut rcc =
+                dp.RCC.freeze(Config::hse(8.MHz()).sysclk(168.MHz()).pclk1(42.MHz()).pclk2(84.MHz()));
+            let gpioa = dp.GPIOA.split(&mut rcc);
+            let gpiob = dp.GPIOB.split(&mut rcc);
+            let mut delay = dp.TIM5.delay_us(&mut rcc);
+            // IMU on SPI1, mode 3, 1 MHz (the MPU-6000's limit for its configuration registers).
+            let spi = dp.SPI1.spi(
+                (Some(gpioa.pa5), Some(gpioa.pa6), Some(gpioa.pa7)),
+                Mode { polarity: Polarity::IdleHigh, phase: Phase::CaptureOnSecondTransition },
+                1.MHz(),
+                &mut rcc,
+            );
+            let cs = gpioa.pa4.into_push_pull_output_in_state(stm32f4xx_hal::gpio::PinState::High);
+            let Ok(dev) = ExclusiveDevice::new_no_delay(spi, cs);
+            let mut imu = Mpu6000::new(dev, SensorRotation::IDENTITY);
+            if let Err(e) = imu.init(&mut delay) {
+                defmt::error!("IMU init failed: {}", defmt::Debug2Format(&e));
+                halt("no IMU");
+            }
+            // Magnetometer and speed controllers share I2C1.
+            let i2c = dp.I2C1.i2c(
+                (gpiob.pb8, gpiob.pb9),
+                I2cMode::Fast { frequency: 400.kHz(), duty_cycle: stm32f4xx_hal::i2c::DutyCycle::Ratio2to1 },
+                &mut rcc,
+            );
+            let Some(bus) = cortex_m::singleton!(: RefCell<I2c<I2C1>> = RefCell::new(i2c)) else {
+                halt("i2c bus")
+            };
+            let mut esc = BlCtrl::new(RefCellDevice::new(bus), DEFAULT_ADDRESSES);
+            if esc.stop().is_err() {
+                defmt::warn!("a speed controller did not answer");
+            }
+            let mut mag = Hmc5883l::new(RefCellDevice::new(bus), SensorRotation::IDENTITY);
+            let mag = match mag.init() {
+                Ok(()) => Some(mag),
+                Err(e) => {
+                    defmt::warn!("no magnetometer: {}", defmt::Debug2Format(&e));
+                    None
+                }
+            };
+            let Ok(serial) = Serial::new(
+                dp.USART1,
+                (gpioa.pa9, gpioa.pa10),
+                SerialConfig::default().baudrate(BAUD.bps()),
+                &mut rcc,
+            ) else {
+                halt("uart")
+            };
+            start_uart(serial);
+            cp.DCB.enable_trace();
+            cp.DWT.enable_cycle_counter();
+            start_tick(cp.SYST, rcc.clocks.sysclk().raw());
+            Board { last_tick: TICKS.load(Ordering::Acquire), dwt: true, hw: Hardware { imu, mag, esc } }
+        }
+
+        /// One IMU sample stamped `time_us`.
+        pub fn read_imu(&mut self, time_us: u64) -> Option<ImuSample> {
+            let r = self.hw.imu.read_sample().ok()?;
+            Some(ImuSample { time_us, gyro_rad_s: r.gyro_rad_s, accel_m_s2: r.accel_m_s2 })
+        }
+
+        /// The magnetometer's field (body axes), if present and readable.
+        pub fn read_mag(&mut self) -> Option<Vec3> {
+            self.hw.mag.as_mut()?.read_field().ok().map(Vec3::from_array)
+        }
+
+        /// Commands the four speed controllers.
+        pub fn set_motors(&mut self, cmd: [u8; 4]) -> Result<(), ()> {
+            self.hw.esc.set(cmd).map_err(|_| ())
+        }
+
+        /// Periodic log line.
+        pub fn after_step(&mut self, steps: u32, s: &RunStats) {
+            if steps.is_multiple_of(2500) {
+                defmt::info!(
+                    "steps {} mode {} step max {} cycles mean {} link ok {} errors {}",
+                    s.steps,
+                    s.mode,
+                    s.max_cost,
+                    (s.sum_cost / s.steps.max(1) as u64) as u32,
+                    s.link.ok,
+                    s.link.errors()
+                );
+            }
+        }
+    }
+}
+
+#[cfg(feature = "qemu")]
+mod variant {
+    use super::*;
+
+    /// QEMU's netduinoplus2 clocks the Cortex-M4 (and SysTick) at 168 MHz whatever the RCC says.
+    pub const QEMU_CORE_HZ: u32 = 168_000_000;
+    /// Control steps before the report.
+    pub const QEMU_STEPS: u32 = 1000;
+
+    pub struct Hardware;
+
+    impl Board {
+        /// Reset clock (HSI), UART, tick; no sensors.
+        pub fn init() -> Self {
+            let (Some(dp), Some(cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
+                halt("peripherals already taken")
+            };
+            let mut rcc = dp.RCC.constrain();
+            let gpioa = dp.GPIOA.split(&mut rcc);
+            let Ok(serial) = Serial::new(
+                dp.USART1,
+                (gpioa.pa9, gpioa.pa10),
+                SerialConfig::default().baudrate(BAUD.bps()),
+                &mut rcc,
+            ) else {
+                halt("uart")
+            };
+            start_uart(serial);
+            start_tick(cp.SYST, QEMU_CORE_HZ);
+            cortex_m_semihosting::hprintln!("firmware (qemu variant) started");
+            Board { last_tick: TICKS.load(Ordering::Acquire), dwt: false, hw: Hardware }
+        }
+
+        /// A synthetic IMU at rest: no rotation, gravity along body z.
+        pub fn read_imu(&mut self, time_us: u64) -> Option<ImuSample> {
+            Some(ImuSample { time_us, gyro_rad_s: [0.0; 3], accel_m_s2: [0.0, 0.0, control_core::GRAVITY] })
+        }
+
+        /// No magnetometer.
+        pub fn read_mag(&mut self) -> Option<Vec3> {
+            None
+        }
+
+        /// No speed controllers (QEMU has no I2C).
+        pub fn set_motors(&mut self, _cmd: [u8; 4]) -> Result<(), ()> {
+            Ok(())
+        }
+
+        /// After a fixed number of steps: report the counts over semihosting and exit.
+        pub fn after_step(&mut self, steps: u32, s: &RunStats) {
+            if steps >= QEMU_STEPS {
+                let _ = self.hw;
+                cortex_m_semihosting::hprintln!(
+                    "loop ran: steps={} ticks={} imu_errors={} motor_errors={} step_cycles_max={} step_cycles_mean={} mode={:?} link_ok={} link_errors={}",
+                    s.steps,
+                    self.last_tick,
+                    s.imu_errors,
+                    s.motor_errors,
+                    s.max_cost,
+                    s.sum_cost / s.steps.max(1) as u64,
+                    s.mode,
+                    s.link.ok,
+                    s.link.errors()
+                );
+                cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
+            }
+        }
+    }
+}
+
+use variant::Hardware;

@@ -1,0 +1,17 @@
+//! The radio link's downlink side: frames a message and queues it for the UART.
+use crate::board::Board;
+use protocol::Downlink;
+use protocol::frame::{MAX_FRAME, encode};
+
+/// Frames `msg` and queues it; a message that does not fit the queue whole is dropped (never half-sent).
+pub fn send(board: &mut Board, msg: &Downlink) {
+    let mut buf = [0u8; MAX_FRAME];
+    if let Ok(frame) = encode(msg, &mut buf) {
+        let n = frame.len();
+        let mut tmp = [0u8; MAX_FRAME];
+        tmp[..n].copy_from_slice(frame);
+        if board.tx_free() >= n {
+            board.tx_bytes(&tmp[..n]);
+        }
+    }
+}

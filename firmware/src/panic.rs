@@ -1,0 +1,64 @@
+//! The panic handler: stop the motors, say why, stop.
+//!
+//! The control code is written not to panic (no unwrap or indexing on the flight path, math saturates); this is
+//! the last line of defence. It masks interrupts, sends a stop command to every speed controller by driving I2C1
+//! at the register level with bounded waits (the bus may have been mid-transfer), logs the message, and halts. A
+//! BL-Ctrl controller also stops its motor when commands stop arriving.
+use core::panic::PanicInfo;
+
+#[panic_handler]
+fn panic(info: &PanicInfo) -> ! {
+    cortex_m::interrupt::disable();
+    #[cfg(not(feature = "qemu"))]
+    stop_motors();
+    defmt::error!("panic: {}", defmt::Display2Format(info));
+    #[cfg(feature = "qemu")]
+    {
+        cortex_m_semihosting::hprintln!("panic: {}", info);
+        cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+    }
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
+/// Writes 0 to each BL-Ctrl address on I2C1, register by register, never waiting more than a bounded count.
+#[cfg(not(feature = "qemu"))]
+#[allow(unsafe_code)]
+fn stop_motors() {
+    use stm32f4xx_hal::pac;
+    // SAFETY: called once with interrupts masked after a panic; nothing else runs any more.
+    let dp = unsafe { pac::Peripherals::steal() };
+    let i2c = dp.I2C1;
+    let wait = |cond: &dyn Fn() -> bool| {
+        for _ in 0..20_000 {
+            if cond() {
+                return true;
+            }
+        }
+        false
+    };
+    // Reset the peripheral (it may be stuck mid-transfer), then 100 kHz at PCLK1 = 42 MHz.
+    i2c.cr1().modify(|_, w| w.swrst().set_bit());
+    i2c.cr1().modify(|_, w| w.swrst().clear_bit());
+    i2c.cr2().write(|w| unsafe { w.freq().bits(42) });
+    i2c.ccr().write(|w| unsafe { w.ccr().bits(210) });
+    i2c.trise().write(|w| w.trise().set(43));
+    i2c.cr1().modify(|_, w| w.pe().set_bit());
+    for addr in drivers::blctrl::DEFAULT_ADDRESSES {
+        i2c.cr1().modify(|_, w| w.start().set_bit());
+        if !wait(&|| i2c.sr1().read().sb().bit_is_set()) {
+            continue;
+        }
+        i2c.dr().write(|w| unsafe { w.bits((addr as u16) << 1) });
+        if !wait(&|| i2c.sr1().read().addr().bit_is_set() || i2c.sr1().read().af().bit_is_set()) {
+            i2c.cr1().modify(|_, w| w.stop().set_bit());
+            continue;
+        }
+        let _ = i2c.sr2().read();
+        i2c.dr().write(|w| unsafe { w.bits(0) });
+        wait(&|| i2c.sr1().read().btf().bit_is_set());
+        i2c.cr1().modify(|_, w| w.stop().set_bit());
+        wait(&|| !i2c.cr1().read().stop().bit_is_set());
+    }
+}
