@@ -282,3 +282,24 @@ fn excessive_tilt_stops_the_motors() {
     }
     panic!("no emergency");
 }
+
+#[test]
+fn parameters_change_only_on_the_ground() {
+    use crate::params::ParamId;
+    let mut h = Harness::new();
+    h.run(1.0);
+    let r = h.core.set_param(ParamId::TrajectoryZd, 1.0);
+    assert_eq!(r.outcome, ParamOutcome::Ok);
+    assert_eq!(h.core.get_param(ParamId::TrajectoryZd).value, 1.0);
+    assert_eq!(h.core.set_param(ParamId::RollK4, 1e4).outcome, ParamOutcome::Invalid);
+    assert_eq!(h.core.get_param(ParamId::RollK4).value, FlightParams::paper().gains.roll.k[3]);
+    h.command(Command::Arm);
+    h.command(Command::TakeOff);
+    h.run(1.0);
+    let r = h.core.set_param(ParamId::TrajectoryZd, 0.8);
+    assert_eq!(r.outcome, ParamOutcome::Refused);
+    assert_eq!(r.value, 1.0);
+    // The new altitude is flown.
+    h.run_until(FlightMode::Hover, 20.0);
+    assert!((h.p.z - 1.0).abs() < 0.05, "{}", h.p.z);
+}

@@ -139,6 +139,32 @@ pub enum CommandResult {
     Refused(Command, Refusal),
 }
 
+/// The answer to a parameter request.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ParamReply {
+    /// Which parameter.
+    pub id: params::ParamId,
+    /// Its value now (after the change when accepted).
+    pub value: f32,
+    /// Outcome.
+    pub outcome: ParamOutcome,
+}
+
+/// Outcome of a parameter request.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ParamOutcome {
+    /// Read, or changed.
+    Ok,
+    /// Changes are refused while the motors run in flight (disarm or land first).
+    Refused,
+    /// The value fails the parameter checks (the whole set is validated, as when it loads).
+    Invalid,
+}
+
 /// The sensor inputs of one control period.
 #[derive(Clone, Copy, Debug)]
 pub struct ControlInputs<'a> {
@@ -264,6 +290,29 @@ impl ControlCore {
     /// The current mode.
     pub fn mode(&self) -> FlightMode {
         self.mode
+    }
+
+    /// A parameter's value.
+    pub fn get_param(&self, id: params::ParamId) -> ParamReply {
+        ParamReply { id, value: self.params.get(id), outcome: ParamOutcome::Ok }
+    }
+
+    /// Changes a parameter. Only on the ground (disarmed or armed at idle); the new set is validated as a whole
+    /// and the laws are rebuilt from it.
+    pub fn set_param(&mut self, id: params::ParamId, value: f32) -> ParamReply {
+        let refuse = |o| ParamReply { id, value: self.params.get(id), outcome: o };
+        if !matches!(self.mode, FlightMode::Disarmed | FlightMode::Armed) {
+            return refuse(ParamOutcome::Refused);
+        }
+        match self.params.with(id, value) {
+            Ok(p) => {
+                self.params = p;
+                self.controller = Controller::new(p.gains, p.vehicle);
+                self.yaw_d = p.trajectory.yaw_d_rad;
+                ParamReply { id, value: p.get(id), outcome: ParamOutcome::Ok }
+            }
+            Err(_) => refuse(ParamOutcome::Invalid),
+        }
     }
 
     /// The estimator (read-only), e.g. for the attitude at a frame's capture time.

@@ -659,6 +659,243 @@ impl FlightParams {
     }
 }
 
+/// A parameter that can be read and changed over the radio link (one `f32` each; counts are rounded).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum ParamId {
+    /// `trajectory.y_d_m`.
+    TrajectoryYd,
+    /// `trajectory.z_d_m`.
+    TrajectoryZd,
+    /// `trajectory.x_range_m[0]`.
+    TrajectoryXStart,
+    /// `trajectory.x_range_m[1]`.
+    TrajectoryXEnd,
+    /// `trajectory.speed_m_s`.
+    TrajectorySpeed,
+    /// `trajectory.accel_m_s2`.
+    TrajectoryAccel,
+    /// `trajectory.sweeps`.
+    TrajectorySweeps,
+    /// `trajectory.yaw_d_rad`.
+    TrajectoryYaw,
+    /// `gains.altitude.a_z1`.
+    AltitudeAz1,
+    /// `gains.altitude.a_z2`.
+    AltitudeAz2,
+    /// `gains.altitude.integral_gain`.
+    AltitudeIntegral,
+    /// `gains.yaw.a_psi1`.
+    YawApsi1,
+    /// `gains.yaw.a_psi2`.
+    YawApsi2,
+    /// `gains.roll.k[0..4]` (k1..k4).
+    RollK1,
+    /// k2.
+    RollK2,
+    /// k3.
+    RollK3,
+    /// k4.
+    RollK4,
+    /// `gains.roll.b[0..4]` (b1..b4).
+    RollB1,
+    /// b2.
+    RollB2,
+    /// b3.
+    RollB3,
+    /// b4.
+    RollB4,
+    /// `gains.roll.trim_gain`.
+    RollTrim,
+    /// `gains.pitch.k[0..4]`.
+    PitchK1,
+    /// k2.
+    PitchK2,
+    /// k3.
+    PitchK3,
+    /// k4.
+    PitchK4,
+    /// `gains.pitch.b[0..4]`.
+    PitchB1,
+    /// b2.
+    PitchB2,
+    /// b3.
+    PitchB3,
+    /// b4.
+    PitchB4,
+    /// `gains.pitch.trim_gain`.
+    PitchTrim,
+    /// `failsafe.vision_hold_after_s`.
+    VisionHoldAfter,
+    /// `failsafe.vision_land_after_s`.
+    VisionLandAfter,
+    /// `failsafe.link_land_after_s`.
+    LinkLandAfter,
+    /// `vehicle.mass_kg`.
+    Mass,
+}
+
+impl ParamId {
+    /// Every parameter, in wire order.
+    pub const ALL: [ParamId; 35] = [
+        ParamId::TrajectoryYd,
+        ParamId::TrajectoryZd,
+        ParamId::TrajectoryXStart,
+        ParamId::TrajectoryXEnd,
+        ParamId::TrajectorySpeed,
+        ParamId::TrajectoryAccel,
+        ParamId::TrajectorySweeps,
+        ParamId::TrajectoryYaw,
+        ParamId::AltitudeAz1,
+        ParamId::AltitudeAz2,
+        ParamId::AltitudeIntegral,
+        ParamId::YawApsi1,
+        ParamId::YawApsi2,
+        ParamId::RollK1,
+        ParamId::RollK2,
+        ParamId::RollK3,
+        ParamId::RollK4,
+        ParamId::RollB1,
+        ParamId::RollB2,
+        ParamId::RollB3,
+        ParamId::RollB4,
+        ParamId::RollTrim,
+        ParamId::PitchK1,
+        ParamId::PitchK2,
+        ParamId::PitchK3,
+        ParamId::PitchK4,
+        ParamId::PitchB1,
+        ParamId::PitchB2,
+        ParamId::PitchB3,
+        ParamId::PitchB4,
+        ParamId::PitchTrim,
+        ParamId::VisionHoldAfter,
+        ParamId::VisionLandAfter,
+        ParamId::LinkLandAfter,
+        ParamId::Mass,
+    ];
+
+    /// The field's dotted name, as in scenario files.
+    pub fn name(self) -> &'static str {
+        match self {
+            ParamId::TrajectoryYd => "trajectory.y_d_m",
+            ParamId::TrajectoryZd => "trajectory.z_d_m",
+            ParamId::TrajectoryXStart => "trajectory.x_range_m[0]",
+            ParamId::TrajectoryXEnd => "trajectory.x_range_m[1]",
+            ParamId::TrajectorySpeed => "trajectory.speed_m_s",
+            ParamId::TrajectoryAccel => "trajectory.accel_m_s2",
+            ParamId::TrajectorySweeps => "trajectory.sweeps",
+            ParamId::TrajectoryYaw => "trajectory.yaw_d_rad",
+            ParamId::AltitudeAz1 => "gains.altitude.a_z1",
+            ParamId::AltitudeAz2 => "gains.altitude.a_z2",
+            ParamId::AltitudeIntegral => "gains.altitude.integral_gain",
+            ParamId::YawApsi1 => "gains.yaw.a_psi1",
+            ParamId::YawApsi2 => "gains.yaw.a_psi2",
+            ParamId::RollK1 => "gains.roll.k[0]",
+            ParamId::RollK2 => "gains.roll.k[1]",
+            ParamId::RollK3 => "gains.roll.k[2]",
+            ParamId::RollK4 => "gains.roll.k[3]",
+            ParamId::RollB1 => "gains.roll.b[0]",
+            ParamId::RollB2 => "gains.roll.b[1]",
+            ParamId::RollB3 => "gains.roll.b[2]",
+            ParamId::RollB4 => "gains.roll.b[3]",
+            ParamId::RollTrim => "gains.roll.trim_gain",
+            ParamId::PitchK1 => "gains.pitch.k[0]",
+            ParamId::PitchK2 => "gains.pitch.k[1]",
+            ParamId::PitchK3 => "gains.pitch.k[2]",
+            ParamId::PitchK4 => "gains.pitch.k[3]",
+            ParamId::PitchB1 => "gains.pitch.b[0]",
+            ParamId::PitchB2 => "gains.pitch.b[1]",
+            ParamId::PitchB3 => "gains.pitch.b[2]",
+            ParamId::PitchB4 => "gains.pitch.b[3]",
+            ParamId::PitchTrim => "gains.pitch.trim_gain",
+            ParamId::VisionHoldAfter => "failsafe.vision_hold_after_s",
+            ParamId::VisionLandAfter => "failsafe.vision_land_after_s",
+            ParamId::LinkLandAfter => "failsafe.link_land_after_s",
+            ParamId::Mass => "vehicle.mass_kg",
+        }
+    }
+
+    /// The parameter with a dotted name.
+    pub fn from_name(name: &str) -> Option<ParamId> {
+        ParamId::ALL.iter().copied().find(|p| p.name() == name)
+    }
+
+    /// The field behind a real-valued parameter (`None` for the count `sweeps`).
+    fn slot(self, p: &mut FlightParams) -> Option<&mut f32> {
+        let g = &mut p.gains;
+        Some(match self {
+            ParamId::TrajectoryYd => &mut p.trajectory.y_d_m,
+            ParamId::TrajectoryZd => &mut p.trajectory.z_d_m,
+            ParamId::TrajectoryXStart => &mut p.trajectory.x_range_m[0],
+            ParamId::TrajectoryXEnd => &mut p.trajectory.x_range_m[1],
+            ParamId::TrajectorySpeed => &mut p.trajectory.speed_m_s,
+            ParamId::TrajectoryAccel => &mut p.trajectory.accel_m_s2,
+            ParamId::TrajectorySweeps => return None,
+            ParamId::TrajectoryYaw => &mut p.trajectory.yaw_d_rad,
+            ParamId::AltitudeAz1 => &mut g.altitude.a_z1,
+            ParamId::AltitudeAz2 => &mut g.altitude.a_z2,
+            ParamId::AltitudeIntegral => &mut g.altitude.integral_gain,
+            ParamId::YawApsi1 => &mut g.yaw.a_psi1,
+            ParamId::YawApsi2 => &mut g.yaw.a_psi2,
+            ParamId::RollK1 => &mut g.roll.k[0],
+            ParamId::RollK2 => &mut g.roll.k[1],
+            ParamId::RollK3 => &mut g.roll.k[2],
+            ParamId::RollK4 => &mut g.roll.k[3],
+            ParamId::RollB1 => &mut g.roll.b[0],
+            ParamId::RollB2 => &mut g.roll.b[1],
+            ParamId::RollB3 => &mut g.roll.b[2],
+            ParamId::RollB4 => &mut g.roll.b[3],
+            ParamId::RollTrim => &mut g.roll.trim_gain,
+            ParamId::PitchK1 => &mut g.pitch.k[0],
+            ParamId::PitchK2 => &mut g.pitch.k[1],
+            ParamId::PitchK3 => &mut g.pitch.k[2],
+            ParamId::PitchK4 => &mut g.pitch.k[3],
+            ParamId::PitchB1 => &mut g.pitch.b[0],
+            ParamId::PitchB2 => &mut g.pitch.b[1],
+            ParamId::PitchB3 => &mut g.pitch.b[2],
+            ParamId::PitchB4 => &mut g.pitch.b[3],
+            ParamId::PitchTrim => &mut g.pitch.trim_gain,
+            ParamId::VisionHoldAfter => &mut p.failsafe.vision_hold_after_s,
+            ParamId::VisionLandAfter => &mut p.failsafe.vision_land_after_s,
+            ParamId::LinkLandAfter => &mut p.failsafe.link_land_after_s,
+            ParamId::Mass => &mut p.vehicle.mass_kg,
+        })
+    }
+}
+
+impl FlightParams {
+    /// A parameter's value.
+    pub fn get(&self, id: ParamId) -> f32 {
+        let mut copy = *self;
+        match id.slot(&mut copy) {
+            Some(v) => *v,
+            None => self.trajectory.sweeps as f32,
+        }
+    }
+
+    /// A copy with one parameter changed, validated as a whole; the error names the offending field.
+    pub fn with(&self, id: ParamId, value: f32) -> Result<FlightParams, ParamError> {
+        let mut p = *self;
+        if !value.is_finite() {
+            return Err(ParamError { field: id.name(), problem: "must be finite" });
+        }
+        match id.slot(&mut p) {
+            Some(v) => *v = value,
+            None => {
+                if !(0.0..=100.0).contains(&value) {
+                    return Err(ParamError { field: id.name(), problem: "must lie in 0..=100" });
+                }
+                p.trajectory.sweeps = (value + 0.5) as u8;
+            }
+        }
+        p.validate()?;
+        Ok(p)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -706,6 +943,25 @@ mod tests {
         p.gains.pitch.b = [40.0, 40.0, 8.0, 12.0];
         p.gains.max_tilt_rad = 0.1;
         assert!(p.validate().unwrap_err().problem.contains("largest tilt"));
+    }
+
+    #[test]
+    fn parameters_by_id() {
+        let p = FlightParams::paper();
+        for id in ParamId::ALL {
+            assert_eq!(ParamId::from_name(id.name()), Some(id));
+            let v = p.get(id);
+            assert!(v.is_finite(), "{}", id.name());
+            // Setting a parameter to its own value keeps the set valid.
+            assert_eq!(p.with(id, v).unwrap().get(id), v, "{}", id.name());
+        }
+        let q = p.with(ParamId::TrajectoryZd, 1.0).unwrap();
+        assert_eq!(q.trajectory.z_d_m, 1.0);
+        assert_eq!(p.with(ParamId::TrajectorySweeps, 3.0).unwrap().trajectory.sweeps, 3);
+        // Invalid values are refused with the field that the set-wide check names.
+        assert_eq!(p.with(ParamId::RollK4, 1000.0).unwrap_err().field, "gains.roll");
+        assert_eq!(p.with(ParamId::Mass, f32::NAN).unwrap_err().field, "vehicle.mass_kg");
+        assert!(ParamId::from_name("gains.roll.k[9]").is_none());
     }
 
     #[test]

@@ -105,6 +105,9 @@ fn main() -> ! {
                 link::send(&mut board, &Downlink::CommandAck(r));
             }
         }
+        if let Some(r) = out.param_reply {
+            link::send(&mut board, &Downlink::Param(r));
+        }
         if steps.is_multiple_of(TELEMETRY_EVERY) {
             let t = Telemetry {
                 time_us,

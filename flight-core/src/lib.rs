@@ -121,6 +121,8 @@ pub struct StepOutput {
     pub frame: Option<FrameOutcome>,
     /// Vision counters since start.
     pub vision: VisionCounters,
+    /// The answer to this step's parameter request (the last, when several arrived).
+    pub param_reply: Option<control_core::ParamReply>,
 }
 
 /// The flight stack.
@@ -173,10 +175,13 @@ impl FlightStack {
         let mut command: Option<Command> = None;
         let mut fix: Option<PositionFix> = None;
         let mut frame = None;
+        let mut param_reply = None;
         for msg in inp.uplink {
             match msg {
                 Uplink::Command(c) => command = Some(*c),
                 Uplink::Heartbeat => {}
+                Uplink::ParamSet { id, value } => param_reply = Some(self.control.set_param(*id, *value)),
+                Uplink::ParamGet(id) => param_reply = Some(self.control.get_param(*id)),
                 Uplink::Vision(m) => {
                     self.counters.frames += 1;
                     let outcome = self.solve(m);
@@ -208,6 +213,54 @@ impl FlightStack {
             command,
             link_message: !inp.uplink.is_empty(),
         });
-        StepOutput { control, frame, vision: self.counters }
+        StepOutput { control, frame, vision: self.counters, param_reply }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use control_core::params::ParamId;
+    use control_core::{FlightMode, ParamOutcome};
+
+    fn imu(t: u64) -> [ImuSample; 2] {
+        [t - 1000, t].map(|time_us| ImuSample {
+            time_us,
+            gyro_rad_s: [0.0; 3],
+            accel_m_s2: [0.0, 0.0, control_core::GRAVITY],
+        })
+    }
+
+    #[test]
+    fn link_messages_reach_the_flight_code() {
+        let mut s = FlightStack::new(FlightConfig::paper()).unwrap();
+        let mut t = 0;
+        for _ in 0..400 {
+            t += 2000;
+            s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[Uplink::Heartbeat] });
+        }
+        t += 2000;
+        let out = s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            uplink: &[Uplink::ParamSet { id: ParamId::TrajectorySpeed, value: 0.3 }],
+        });
+        let r = out.param_reply.unwrap();
+        assert_eq!((r.id, r.value, r.outcome), (ParamId::TrajectorySpeed, 0.3, ParamOutcome::Ok));
+        t += 2000;
+        let out = s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            uplink: &[Uplink::Command(Command::Arm)],
+        });
+        assert_eq!(out.control.status.mode, FlightMode::Armed);
+        // A frame without the line is counted, not solved.
+        t += 2000;
+        let m = VisionMeasurement { capture_time_us: t - 40_000, frame_seq: 0, observation: None };
+        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[Uplink::Vision(m)] });
+        assert_eq!(out.frame, Some(FrameOutcome::NoTarget));
+        assert_eq!(out.vision.no_target, 1);
     }
 }

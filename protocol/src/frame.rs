@@ -300,6 +300,13 @@ mod tests {
         // COBS: [03 01 01] [03 9D C8]; delimiter 00.
         assert_eq!(crc16(&[1, 1, 0]), 0xC89D);
         assert_eq!(frame_of(&Uplink::Command(Command::Arm)), [0x03, 0x01, 0x01, 0x03, 0x9D, 0xC8, 0x00]);
+        // ParamSet: variant 3, ParamId 1 (TrajectoryZd), f32 1.0 little endian (00 00 80 3F).
+        let f = frame_of(&Uplink::ParamSet { id: control_core::params::ParamId::TrajectoryZd, value: 1.0 });
+        let mut raw = vec![WIRE_VERSION, 3, 1, 0x00, 0x00, 0x80, 0x3F];
+        raw.extend(crc16(&raw).to_le_bytes());
+        let mut enc = [0u8; 32];
+        let n = cobs_encode(&raw, &mut enc).unwrap();
+        assert_eq!(f[..n], enc[..n]);
         // Heartbeat: version 1, variant 2, no zero byte: one COBS block of 5.
         assert_eq!(frame_of(&Uplink::Heartbeat)[..3], [0x05, 0x01, 0x02]);
     }
@@ -390,8 +397,11 @@ mod tests {
         /// Encoding then decoding any command or heartbeat is the identity, and no encoded frame contains a
         /// zero before its end.
         #[test]
-        fn encode_decode_identity(which in 0u8..7) {
+        fn encode_decode_identity(which in 0u8..9, param in 0usize..35, value in proptest::prelude::any::<f32>()) {
+            let id = control_core::params::ParamId::ALL[param];
             let msg = match which {
+                7 => Uplink::ParamGet(id),
+                8 => Uplink::ParamSet { id, value: if value.is_nan() { 0.0 } else { value } },
                 0 => Uplink::Heartbeat,
                 1 => Uplink::Command(Command::Arm),
                 2 => Uplink::Command(Command::Disarm),

@@ -15,7 +15,8 @@ pub mod frame;
 
 use control_core::estimator::StateEstimate;
 use control_core::laws::Setpoint;
-use control_core::{Command, CommandResult, Failsafe, FlightMode};
+use control_core::params::ParamId;
+use control_core::{Command, CommandResult, Failsafe, FlightMode, ParamReply};
 use serde::{Deserialize, Serialize};
 use vision_core::LineObservation;
 
@@ -41,6 +42,15 @@ pub enum Uplink {
     Command(Command),
     /// Keeps the link alive when nothing else is sent.
     Heartbeat,
+    /// Change a parameter (on the ground only).
+    ParamSet {
+        /// Which.
+        id: ParamId,
+        /// New value.
+        value: f32,
+    },
+    /// Read a parameter.
+    ParamGet(ParamId),
 }
 
 /// Vehicle to ground station: what the flight code is doing.
@@ -75,4 +85,6 @@ pub enum Downlink {
     Telemetry(Telemetry),
     /// The outcome of a command.
     CommandAck(CommandResult),
+    /// The answer to a parameter request.
+    Param(ParamReply),
 }
