@@ -17,6 +17,7 @@
 
 pub mod camera;
 pub mod detect;
+pub mod flow;
 pub mod image;
 pub mod observation;
 pub mod pose;
