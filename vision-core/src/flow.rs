@@ -631,10 +631,8 @@ fn aggregate(
     // Medians per axis: of the displacement less the predicted rotational flow (normalised), and of the raw
     // displacement (pixels).
     let mut median = |value: &dyn Fn(usize) -> f32| {
-        let mut j = 0;
-        for k in (0..n).filter(idx) {
+        for (j, k) in (0..n).filter(idx).enumerate() {
             scratch[j] = value(k);
-            j += 1;
         }
         median_of(&mut scratch[..m])
     };
