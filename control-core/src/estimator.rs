@@ -121,12 +121,52 @@ pub struct StateEstimate {
     pub yaw_std_rad: f32,
 }
 
+/// The estimated state at a past time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PastState {
+    /// The time asked for (us).
+    pub time_us: u64,
+    /// Position, world frame (m).
+    pub position_m: Vec3,
+    /// Velocity, world frame (m/s).
+    pub velocity_m_s: Vec3,
+    /// Attitude, world from body.
+    pub q: Quat,
+}
+
+/// A stored state, with the estimator's cumulative corrections when it was stored: corrections made later
+/// are applied when the snapshot is read, so a delayed measurement's innovation is formed against the past
+/// state *as corrected since*. Without that, the several measurements in flight during one latency would each
+/// correct the same error again (with 60 Hz flow 40 ms late, three times: the estimate oscillates).
 #[derive(Clone, Copy, Debug)]
 struct Snapshot {
     time_us: u64,
     p: Vec3,
     v: Vec3,
     q: Quat,
+    corr: Corrections,
+}
+
+/// Sums of the corrections injected into position, velocity and attitude (body frame, small angles).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Corrections {
+    p: Vec3,
+    v: Vec3,
+    th: Vec3,
+}
+
+impl Snapshot {
+    /// The snapshot with the corrections made since it was stored.
+    fn corrected(&self, now: &Corrections) -> Snapshot {
+        let dth = now.th - self.corr.th;
+        Snapshot {
+            time_us: self.time_us,
+            p: self.p + (now.p - self.corr.p),
+            v: self.v + (now.v - self.corr.v),
+            q: self.q.mul(&Quat::from_rotvec(dth)).normalized(),
+            corr: *now,
+        }
+    }
 }
 
 /// Counters of what the estimator used and rejected.
@@ -163,6 +203,7 @@ pub struct Estimator {
     last_accel: Vec3,
     pending_dt: f32,
     history: [Snapshot; HISTORY_LEN],
+    corr: Corrections,
     hist_len: usize,
     hist_head: usize,
     yaw_initialised: bool,
@@ -190,7 +231,7 @@ impl Estimator {
             cov[i][i] = s * s;
         }
         let q = Quat::from_mat3(&WORLD_FROM_NAV);
-        let snap = Snapshot { time_us: 0, p: home, v: Vec3::ZERO, q };
+        let snap = Snapshot { time_us: 0, p: home, v: Vec3::ZERO, q, corr: Corrections::default() };
         Self {
             params,
             p: home,
@@ -204,6 +245,7 @@ impl Estimator {
             last_accel: Vec3::new(0.0, 0.0, GRAVITY),
             pending_dt: 0.0,
             history: [snap; HISTORY_LEN],
+            corr: Corrections::default(),
             hist_len: 0,
             hist_head: 0,
             yaw_initialised: false,
@@ -347,7 +389,7 @@ impl Estimator {
     }
 
     fn push_history(&mut self, now_us: u64) {
-        let snap = Snapshot { time_us: now_us, p: self.p, v: self.v, q: self.q };
+        let snap = Snapshot { time_us: now_us, p: self.p, v: self.v, q: self.q, corr: self.corr };
         self.history[self.hist_head] = snap;
         self.hist_head = (self.hist_head + 1) % HISTORY_LEN;
         self.hist_len = (self.hist_len + 1).min(HISTORY_LEN);
@@ -367,12 +409,20 @@ impl Estimator {
             let idx = (newest + HISTORY_LEN - k) % HISTORY_LEN;
             let s = self.history[idx];
             if s.time_us <= t_us {
+                let s = s.corrected(&self.corr);
                 return Some(match later {
                     Some(l) if l.time_us > s.time_us => {
+                        let l = l.corrected(&self.corr);
                         let f = (t_us - s.time_us) as f32 / (l.time_us - s.time_us) as f32;
                         // Attitude: the nearer sample (2 ms apart at most: below 0.1 deg at 1 rad/s).
                         let q = if f < 0.5 { s.q } else { l.q };
-                        Snapshot { time_us: t_us, p: s.p + (l.p - s.p) * f, v: s.v + (l.v - s.v) * f, q }
+                        Snapshot {
+                            time_us: t_us,
+                            p: s.p + (l.p - s.p) * f,
+                            v: s.v + (l.v - s.v) * f,
+                            q,
+                            corr: s.corr,
+                        }
                     }
                     _ => s,
                 });
@@ -380,6 +430,12 @@ impl Estimator {
             later = Some(s);
         }
         None
+    }
+
+    /// Position, velocity and attitude at a past time (from the history, interpolated), for delayed
+    /// measurements such as the optical flow of a frame pair.
+    pub fn past_state(&self, t_us: u64) -> Option<PastState> {
+        self.state_at(t_us).map(|s| PastState { time_us: t_us, position_m: s.p, velocity_m_s: s.v, q: s.q })
     }
 
     /// Attitude at a past time (from the history), for solving a delayed frame's pose.
@@ -427,6 +483,9 @@ impl Estimator {
         self.p += v3(IP);
         self.v += v3(IV);
         self.q = self.q.mul(&Quat::from_rotvec(v3(ITH))).normalized();
+        self.corr.p += v3(IP);
+        self.corr.v += v3(IV);
+        self.corr.th += v3(ITH);
         self.bg += v3(IBG);
         self.ba += v3(IBA);
     }

@@ -8,6 +8,10 @@
 //! time* (kept in the estimator's history), then fuses the fix. See `docs/architecture.md` for why the solve
 //! runs on board rather than on the ground.
 //!
+//! Optical-flow measurements of the downward camera arrive as flow statistics of a frame pair
+//! ([`protocol::FlowMeasurement`]); [`flow`] derotates them with the gyro over exactly the frame interval and
+//! scales them by the range into a body velocity for the estimator.
+//!
 //! `vision-core` and `control-core` do not depend on each other; this crate is the only place they meet.
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
@@ -16,9 +20,12 @@
 // `!(x > 0.0)` deliberately rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-use control_core::estimator::{ImuSample, PositionFix};
+pub mod flow;
+
+use control_core::estimator::{BodyVelocity, ImuSample, PositionFix};
 use control_core::params::{FlightParams, ParamError};
 use control_core::{Command, ControlCore, ControlInputs, ControlOutputs};
+use flow::{FlowConfig, FlowCounters, FlowOutcome, GyroHistory};
 use geometry::Vec3;
 use protocol::{Uplink, VisionMeasurement};
 use vision_core::{
@@ -62,12 +69,14 @@ pub struct FlightConfig {
     pub control: FlightParams,
     /// The on-board pose solve.
     pub vision: VisionConfig,
+    /// The use of the downward camera's flow.
+    pub flow: FlowConfig,
 }
 
 impl FlightConfig {
     /// The paper's experiment.
     pub fn paper() -> Self {
-        Self { control: FlightParams::paper(), vision: VisionConfig::default() }
+        Self { control: FlightParams::paper(), vision: VisionConfig::default(), flow: FlowConfig::default() }
     }
 }
 
@@ -121,6 +130,10 @@ pub struct StepOutput {
     pub frame: Option<FrameOutcome>,
     /// Vision counters since start.
     pub vision: VisionCounters,
+    /// This step's flow measurement, if any (the last one when several arrived).
+    pub flow: Option<FlowOutcome>,
+    /// Flow counters since start.
+    pub flow_counters: FlowCounters,
     /// The answer to this step's parameter request (the last, when several arrived).
     pub param_reply: Option<control_core::ParamReply>,
 }
@@ -131,6 +144,9 @@ pub struct FlightStack {
     control: ControlCore,
     vision: VisionConfig,
     counters: VisionCounters,
+    flow_cfg: FlowConfig,
+    flow_counters: FlowCounters,
+    gyro: GyroHistory,
 }
 
 impl FlightStack {
@@ -142,10 +158,23 @@ impl FlightStack {
         if !(cfg.vision.attitude_sigma_floor_rad > 0.0) {
             return Err(ParamError { field: "vision.attitude_sigma_floor_rad", problem: "must be positive" });
         }
+        let f = &cfg.flow;
+        if !(f.min_quality >= 0.0 && f.min_quality <= 1.0) {
+            return Err(ParamError { field: "flow.min_quality", problem: "must lie in [0, 1]" });
+        }
+        if !(f.min_height_m >= 0.0 && f.track_sigma > 0.0 && f.std_floor_m_s > 0.0 && f.scale_sigma >= 0.0) {
+            return Err(ParamError {
+                field: "flow",
+                problem: "min_height_m and scale_sigma must be >= 0, track_sigma and std_floor_m_s positive",
+            });
+        }
         Ok(Self {
             control: ControlCore::new(cfg.control)?,
             vision: cfg.vision,
             counters: VisionCounters::default(),
+            flow_cfg: cfg.flow,
+            flow_counters: FlowCounters::default(),
+            gyro: GyroHistory::new(),
         })
     }
 
@@ -176,6 +205,13 @@ impl FlightStack {
         let mut fix: Option<PositionFix> = None;
         let mut frame = None;
         let mut param_reply = None;
+        let mut flow: Option<BodyVelocity> = None;
+        let mut flow_outcome = None;
+        // The gyro history first, so that a flow interval ending at the newest sample is covered.
+        let bias = self.control.estimator().estimate(inp.time_us).gyro_bias_rad_s;
+        for s in inp.imu {
+            self.gyro.push(s, bias);
+        }
         for msg in inp.uplink {
             match msg {
                 Uplink::Command(c) => command = Some(*c),
@@ -202,6 +238,22 @@ impl FlightStack {
                     }
                     frame = Some(outcome);
                 }
+                Uplink::Flow(m) => {
+                    let c = &mut self.flow_counters;
+                    c.pairs += 1;
+                    let outcome =
+                        flow::flow_velocity(m, &self.flow_cfg, &self.gyro, self.control.estimator());
+                    match outcome {
+                        FlowOutcome::NoFlow(_) => c.no_flow += 1,
+                        FlowOutcome::LowQuality => c.low_quality += 1,
+                        FlowOutcome::Unusable | FlowOutcome::NoGyro => c.unusable += 1,
+                        FlowOutcome::Velocity { velocity, .. } => {
+                            c.velocities += 1;
+                            flow = Some(velocity);
+                        }
+                    }
+                    flow_outcome = Some(outcome);
+                }
             }
         }
         let control = self.control.step(&ControlInputs {
@@ -209,11 +261,18 @@ impl FlightStack {
             imu: inp.imu,
             mag: inp.mag,
             fix,
-            flow: None,
+            flow,
             command,
             link_message: !inp.uplink.is_empty(),
         });
-        StepOutput { control, frame, vision: self.counters, param_reply }
+        StepOutput {
+            control,
+            frame,
+            vision: self.counters,
+            flow: flow_outcome,
+            flow_counters: self.flow_counters,
+            param_reply,
+        }
     }
 }
 

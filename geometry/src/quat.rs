@@ -73,6 +73,21 @@ impl Quat {
         Quat { w: libm::cosf(0.5 * th), x: w.x * s, y: w.y * s, z: w.z * s }
     }
 
+    /// The rotation vector (axis times angle, radians, angle in `[0, pi]`) of this rotation: the inverse of
+    /// [`Quat::from_rotvec`].
+    pub fn to_rotvec(&self) -> Vec3 {
+        // q and -q are the same rotation: take the one with w >= 0 for the shorter angle.
+        let q = if self.w < 0.0 { Quat { w: -self.w, x: -self.x, y: -self.y, z: -self.z } } else { *self };
+        let v = Vec3::new(q.x, q.y, q.z);
+        let s = v.norm();
+        if s < 1e-6 {
+            // 2 asin(s) / s = 2 (1 + s^2 / 6 + ...), and w ~ 1.
+            return v * (2.0 / q.w.max(1e-6));
+        }
+        let angle = 2.0 * libm::atan2f(s, q.w);
+        v * (angle / s)
+    }
+
     /// Rotation matrix equal to this quaternion.
     pub fn to_mat3(&self) -> Mat3 {
         let (w, x, y, z) = (self.w, self.x, self.y, self.z);
@@ -162,5 +177,13 @@ mod tests {
         assert!(Quat::from_rotvec(w).to_mat3().angle_to(&Mat3::exp_so3(w)) < 1e-5);
         let small = Vec3::new(1e-7, -2e-7, 3e-7);
         assert!(Quat::from_rotvec(small).to_mat3().angle_to(&Mat3::exp_so3(small)) < 1e-6);
+        for w in [w, small, Vec3::new(0.0, 3.0, 0.1), Vec3::new(2e-4, 1e-4, -3e-4)] {
+            let back = Quat::from_rotvec(w).to_rotvec();
+            assert!((back - w).norm() <= 1e-5 * w.norm().max(1e-3), "{w:?} -> {back:?}");
+            // The same rotation with the opposite sign of the quaternion.
+            let q = Quat::from_rotvec(w);
+            let neg = Quat::new(-q.w, -q.x, -q.y, -q.z).to_rotvec();
+            assert!((neg - w).norm() <= 1e-5 * w.norm().max(1e-3));
+        }
     }
 }

@@ -2,7 +2,8 @@
 //! shared by the firmware, the simulator and the log tools.
 //!
 //! - [`Uplink`]: ground station to vehicle: the forward camera's line measurement of each frame (solved into a
-//!   pose on board, with the estimator's attitude at the frame's capture time), operator commands, heartbeats.
+//!   pose on board, with the estimator's attitude at the frame's capture time), the downward camera's optical
+//!   flow of each frame pair (derotated and scaled on board), operator commands, heartbeats, parameters.
 //! - [`Downlink`]: vehicle to ground station: telemetry and command acknowledgements.
 //!
 //! All times are microseconds on the vehicle's clock.
@@ -19,6 +20,7 @@ use control_core::params::ParamId;
 use control_core::{Command, CommandResult, Failsafe, FlightMode, ParamReply};
 use serde::{Deserialize, Serialize};
 use vision_core::LineObservation;
+use vision_core::flow::{FlowStats, NoFlowReason};
 
 /// One forward-camera frame as measured by the ground station.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -30,6 +32,20 @@ pub struct VisionMeasurement {
     pub frame_seq: u32,
     /// The line's edges, or `None` when the frame had no line.
     pub observation: Option<LineObservation>,
+}
+
+/// The optical flow of one downward-camera frame pair as measured by the ground station.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FlowMeasurement {
+    /// Capture time of the earlier frame (mid-exposure, us).
+    pub t_prev_us: u64,
+    /// Capture time of the later frame (mid-exposure, us).
+    pub t_next_us: u64,
+    /// Frame counter of the later frame.
+    pub frame_seq: u32,
+    /// The flow's statistics, or why there was none.
+    pub result: Result<FlowStats, NoFlowReason>,
 }
 
 /// Ground station to vehicle.
@@ -51,6 +67,8 @@ pub enum Uplink {
     },
     /// Read a parameter.
     ParamGet(ParamId),
+    /// A downward-camera frame pair's optical flow.
+    Flow(FlowMeasurement),
 }
 
 /// Vehicle to ground station: what the flight code is doing.

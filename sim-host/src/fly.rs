@@ -2,7 +2,7 @@
 use crate::imageio::write_png_rgb;
 use crate::plot::{Plot, Series, render};
 use crate::scenario::Scenario;
-use crate::sil::{CameraMode, Record, RunStats, Sil};
+use crate::sil::{CameraMode, FlowRecord, Record, RunStats, Sil};
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
 use std::fmt::Write as _;
@@ -68,8 +68,13 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
     let csv = opts.out.join("trajectory.csv");
     write_trajectory_csv(&csv, sil.records())?;
     files.push(csv);
+    if stats.flow_camera {
+        let path = opts.out.join("flow.csv");
+        write_flow_csv(&path, sil.flow_records())?;
+        files.push(path);
+    }
     if opts.plots {
-        files.extend(write_plots(&opts.out, sil.records(), &stats)?);
+        files.extend(write_plots(&opts.out, sil.records(), sil.flow_records(), &stats)?);
     }
     let summary = summary_json(opts, &stats, wall, &files);
     let path = opts.out.join("summary.json");
@@ -105,12 +110,36 @@ pub fn summary_json(opts: &FlyOptions, st: &RunStats, wall: f64, files: &[PathBu
             "no_target": st.frames_no_target,
             "rejected": st.frames_rejected,
         },
+        "flow_velocity_rms_error_m_s": if st.flow_camera {
+            json!({"x": r6(st.flow_rms_error_m_s[0]), "y": r6(st.flow_rms_error_m_s[1])})
+        } else {
+            Value::Null
+        },
+        "flow": if st.flow_camera {
+            json!({
+                "camera": "on",
+                "frames": st.down_frames,
+                "pairs": st.flow.pairs,
+                "velocities": st.flow.velocities,
+                "no_flow": st.flow.no_flow,
+                "low_quality": st.flow.low_quality,
+                "unusable": st.flow.unusable,
+                "fused": st.flow_fused[0],
+                "rejected_by_estimator": st.flow_fused[1],
+            })
+        } else {
+            json!({
+                "camera": "off",
+                "degraded": "no downward camera: velocity from the IMU and the forward camera's fixes only",
+            })
+        },
         "failsafes": st.failsafes,
         "modes": st.modes.iter().map(|(t, m)| json!({"t_s": r6(*t), "mode": m})).collect::<Vec<_>>(),
         "definitions": {
             "rms_error_m": "true minus desired position over the tracking phase",
             "estimate_rms_error_m": "estimated minus true position over the tracking phase",
             "max_tilt_deg": "largest true tilt while airborne",
+            "flow_velocity_rms_error_m_s": "optical-flow velocity (body frame, taken to the world frame with the true attitude) minus the true mean velocity over its frame pair, world x and y, while airborne",
         },
         "files": files.iter().filter_map(|f| f.file_name()).map(|f| f.to_string_lossy().to_string()).collect::<Vec<_>>(),
     })
@@ -155,9 +184,28 @@ pub fn write_trajectory_csv(path: &Path, records: &[Record]) -> Result<()> {
     std::fs::write(path, s).with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// Writes x, y, z and the horizontal velocities over time (truth, estimate, desired), like the paper's
-/// figures 7-11 with the truth beside every estimate.
-pub fn write_plots(dir: &Path, records: &[Record], st: &RunStats) -> Result<Vec<PathBuf>> {
+/// Writes the flow velocities against the truth as CSV.
+pub fn write_flow_csv(path: &Path, records: &[FlowRecord]) -> Result<()> {
+    let mut s = String::with_capacity(records.len() * 80);
+    s.push_str("t_s,flow_vx_m_s,flow_vy_m_s,true_vx_m_s,true_vy_m_s,flow_std_m_s\n");
+    for r in records {
+        let _ = writeln!(
+            s,
+            "{:.4},{:.6},{:.6},{:.6},{:.6},{:.6}",
+            r.t_s, r.measured[0], r.measured[1], r.truth[0], r.truth[1], r.std_m_s
+        );
+    }
+    std::fs::write(path, s).with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Writes x, y, z and the horizontal velocities over time (truth, estimate, desired, and the optical flow's
+/// velocity), like the paper's figures 7-11 with the truth beside every estimate.
+pub fn write_plots(
+    dir: &Path,
+    records: &[Record],
+    flow: &[FlowRecord],
+    st: &RunStats,
+) -> Result<Vec<PathBuf>> {
     let t: Vec<f64> = records.iter().map(|r| r.t_s).collect();
     let col = |f: &dyn Fn(&Record) -> f64| records.iter().map(f).collect::<Vec<f64>>();
     let track = records
@@ -174,23 +222,38 @@ pub fn write_plots(dir: &Path, records: &[Record], st: &RunStats) -> Result<Vec<
         ("x.png", "x: along the line (paper Fig. 8)", "x (m)", 0, false),
         ("y.png", "y: distance to the wall (paper Fig. 7)", "y (m)", 1, false),
         ("z.png", "z: altitude (paper Fig. 9)", "z (m)", 2, false),
-        ("vx.png", "x velocity (paper Fig. 10)", "vx (m/s)", 0, true),
-        ("vy.png", "y velocity (paper Fig. 11)", "vy (m/s)", 1, true),
+        ("vx.png", "x velocity (paper Fig. 11)", "vx (m/s)", 0, true),
+        ("vy.png", "y velocity (paper Fig. 10)", "vy (m/s)", 1, true),
     ];
+    let flow_t: Vec<f64> = flow.iter().map(|r| r.t_s).collect();
     let mut out = Vec::new();
     for (file, title, ylabel, k, vel) in panels {
         let truth = col(&|r| if vel { r.true_v[k] } else { r.true_p[k] });
         let est = col(&|r| (if vel { r.est_v[k] } else { r.est_p[k] }) as f64);
         let des = col(&|r| (if vel { r.des_v[k] } else { r.des_p[k] }) as f64);
+        let flow_v: Vec<f64> = if vel { flow.iter().map(|r| r.measured[k]).collect() } else { Vec::new() };
+        let mut series = vec![
+            Series { name: "desired", color: [110, 110, 110], xs: &t, ys: &des, dashed: true },
+            Series { name: "truth", color: [30, 90, 200], xs: &t, ys: &truth, dashed: false },
+            Series { name: "estimate", color: [220, 60, 30], xs: &t, ys: &est, dashed: false },
+        ];
+        if vel && !flow.is_empty() {
+            series.insert(
+                1,
+                Series {
+                    name: "optical flow",
+                    color: [60, 170, 80],
+                    xs: &flow_t,
+                    ys: &flow_v,
+                    dashed: false,
+                },
+            );
+        }
         let img = render(&Plot {
             title,
             x_label: "time (s)",
             y_label: ylabel,
-            series: vec![
-                Series { name: "desired", color: [110, 110, 110], xs: &t, ys: &des, dashed: true },
-                Series { name: "truth", color: [30, 90, 200], xs: &t, ys: &truth, dashed: false },
-                Series { name: "estimate", color: [220, 60, 30], xs: &t, ys: &est, dashed: false },
-            ],
+            series,
             spans: spans.clone(),
             size: (1200, 420),
         });

@@ -4,6 +4,7 @@
 // Index loops read naturally in small dense numerics; `!(x > 0.0)` deliberately rejects NaN.
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod downward;
 pub mod fly;
 pub mod imageio;
 pub mod model;

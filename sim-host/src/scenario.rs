@@ -5,8 +5,9 @@ use anyhow::{Context, Result, bail};
 use control_core::params::{
     ControlGains, EstimatorParams, FailsafeParams, FlightParams, TrajectoryParams, VehicleParams,
 };
+use flight_core::flow::FlowConfig;
 use flight_core::{FlightConfig, VisionConfig};
-use geometry::frames::BODY_FROM_FORWARD_CAMERA;
+use geometry::frames::{BODY_FROM_DOWN_CAMERA, BODY_FROM_FORWARD_CAMERA};
 use geometry::{Mat3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -35,8 +36,11 @@ pub struct SceneConfig {
     pub floor_albedo_rgb: [f64; 3],
     /// Relative amplitude of the wall texture.
     pub wall_texture_contrast: f64,
-    /// Relative amplitude of the floor texture.
+    /// Relative amplitude of the floor texture (near 0: a nearly blank floor).
     pub floor_texture_contrast: f64,
+    /// What the floor looks like.
+    #[serde(default)]
+    pub floor_texture: FloorTexture,
     /// Seed of the procedural textures.
     pub texture_seed: u64,
     /// Illumination gain.
@@ -49,6 +53,31 @@ pub struct SceneConfig {
     /// Other shapes painted on the wall.
     #[serde(default)]
     pub shapes: Vec<WallShape>,
+}
+
+/// The floor's texture.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum FloorTexture {
+    /// Concrete: blotches, grain, sparse speckles.
+    #[default]
+    Concrete,
+    /// Speckled vinyl: dense centimetre chips (good features for the downward camera).
+    Speckled,
+    /// Smooth plaster-like: soft blotches only.
+    Plaster,
+}
+
+impl FloorTexture {
+    /// The renderer's texture kind.
+    pub fn kind(self) -> crate::render::texture::TextureKind {
+        use crate::render::texture::TextureKind;
+        match self {
+            FloorTexture::Concrete => TextureKind::Concrete,
+            FloorTexture::Speckled => TextureKind::Speckled,
+            FloorTexture::Plaster => TextureKind::Plaster,
+        }
+    }
 }
 
 fn yes() -> bool {
@@ -153,6 +182,68 @@ pub struct ForwardCameraConfig {
     /// Edge noise of the `analytic` camera mode (px, 1 sigma per edge point).
     #[serde(default = "default_analytic_noise")]
     pub analytic_noise_px: f64,
+}
+
+/// The downward camera (optical flow).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct DownCameraConfig {
+    /// Whether the vehicle has it; without it, velocity comes from the IMU and the forward camera only.
+    pub enabled: bool,
+    /// Image width (px).
+    pub width_px: u16,
+    /// Image height (px).
+    pub height_px: u16,
+    /// Focal length x (px).
+    pub fx_px: f64,
+    /// Focal length y (px).
+    pub fy_px: f64,
+    /// Principal point x (px).
+    pub cx_px: f64,
+    /// Principal point y (px).
+    pub cy_px: f64,
+    /// Camera centre in the body frame (m).
+    pub mount_offset_body_m: [f64; 3],
+    /// Roll, pitch, yaw of the camera relative to looking straight down, image top forward (deg).
+    pub mount_rotation_deg: [f64; 3],
+    /// Frame rate (Hz).
+    pub rate_hz: f64,
+    /// Delay from capture to the flow reaching the vehicle: processing and radio (s).
+    pub latency_s: f64,
+    /// Exposure time (s): the image integrates the motion over it (motion blur).
+    pub exposure_time_s: f64,
+    /// Exposure gain.
+    pub exposure: f64,
+    /// Sensor noise (grey levels, 1 sigma).
+    pub noise_sigma: f64,
+    /// Optical blur (px, Gaussian sigma, at most 1).
+    pub blur_sigma_px: f64,
+    /// Relative brightness loss in the image corners (0 = none).
+    pub vignetting: f64,
+}
+
+impl Default for DownCameraConfig {
+    fn default() -> Self {
+        // 160x120 with a 60 degree horizontal field of view: f = 80 / tan(30 deg) = 138.6 px.
+        Self {
+            enabled: true,
+            width_px: 160,
+            height_px: 120,
+            fx_px: 138.6,
+            fy_px: 138.6,
+            cx_px: 79.5,
+            cy_px: 59.5,
+            mount_offset_body_m: [0.0, 0.0, 0.0],
+            mount_rotation_deg: [0.0, 0.0, 0.0],
+            rate_hz: 60.0,
+            latency_s: 0.03,
+            exposure_time_s: 0.004,
+            exposure: 1.0,
+            noise_sigma: 2.0,
+            blur_sigma_px: 1.0,
+            vignetting: 0.2,
+        }
+    }
 }
 
 fn default_camera_rate() -> f64 {
@@ -290,6 +381,9 @@ pub struct Scenario {
     pub scene: SceneConfig,
     /// The forward camera.
     pub forward_camera: ForwardCameraConfig,
+    /// The downward camera.
+    #[serde(default)]
+    pub down_camera: DownCameraConfig,
     /// The vehicle (shared by the model and the flight code).
     #[serde(default)]
     pub vehicle: VehicleParams,
@@ -470,6 +564,58 @@ impl Scenario {
             "forward_camera.analytic_noise_px",
             "must be >= 0",
         )?;
+        let d = &self.down_camera;
+        check(
+            d.width_px >= 32 && d.width_px as usize <= vision_core::flow::FLOW_MAX_W,
+            "down_camera.width_px",
+            "must be 32..=320",
+        )?;
+        check(
+            d.height_px >= 32 && d.height_px as usize <= vision_core::flow::FLOW_MAX_H,
+            "down_camera.height_px",
+            "must be 32..=240",
+        )?;
+        check(d.fx_px.is_finite() && d.fx_px > 0.0, "down_camera.fx_px", "must be positive")?;
+        check(d.fy_px.is_finite() && d.fy_px > 0.0, "down_camera.fy_px", "must be positive")?;
+        check(d.cx_px.is_finite(), "down_camera.cx_px", "must be finite")?;
+        check(d.cy_px.is_finite(), "down_camera.cy_px", "must be finite")?;
+        check(
+            finite(&d.mount_offset_body_m) && d.mount_offset_body_m.iter().all(|v| v.abs() <= 0.5),
+            "down_camera.mount_offset_body_m",
+            "must be finite and within 0.5 m of the centre",
+        )?;
+        check(
+            finite(&d.mount_rotation_deg) && d.mount_rotation_deg.iter().all(|a| a.abs() <= 30.0),
+            "down_camera.mount_rotation_deg",
+            "angles must lie within +-30 deg",
+        )?;
+        check(
+            d.rate_hz.is_finite() && (10.0..=400.0).contains(&d.rate_hz),
+            "down_camera.rate_hz",
+            "must lie in [10, 400] Hz",
+        )?;
+        check(
+            d.latency_s.is_finite() && (0.0..=0.15).contains(&d.latency_s),
+            "down_camera.latency_s",
+            "must lie in [0, 0.15] s (the flight code keeps 0.25 s of gyro history)",
+        )?;
+        check(
+            d.exposure_time_s.is_finite() && d.exposure_time_s >= 0.0 && d.exposure_time_s <= 1.0 / d.rate_hz,
+            "down_camera.exposure_time_s",
+            "must lie in [0, 1 / rate_hz]",
+        )?;
+        check(d.exposure.is_finite() && d.exposure > 0.0, "down_camera.exposure", "must be positive")?;
+        check(d.noise_sigma.is_finite() && d.noise_sigma >= 0.0, "down_camera.noise_sigma", "must be >= 0")?;
+        check(
+            d.blur_sigma_px.is_finite() && (0.0..=1.0).contains(&d.blur_sigma_px),
+            "down_camera.blur_sigma_px",
+            "must lie in [0, 1]",
+        )?;
+        check(
+            d.vignetting.is_finite() && (0.0..=0.9).contains(&d.vignetting),
+            "down_camera.vignetting",
+            "must lie in [0, 0.9]",
+        )?;
         let m = &self.model;
         check(
             m.motor_time_constant_s.is_finite() && m.motor_time_constant_s > 0.0,
@@ -583,6 +729,11 @@ impl Scenario {
                 mount: self.forward_camera_mount(),
                 ..VisionConfig::default()
             },
+            flow: FlowConfig {
+                mount: self.down_camera_mount(),
+                track_sigma: (0.05 / self.down_camera.fx_px) as f32,
+                ..FlowConfig::default()
+            },
         }
     }
 
@@ -609,6 +760,31 @@ impl Scenario {
             cx: c.cx_px as f32,
             cy: c.cy_px as f32,
             distortion: Distortion { k1: d[0], k2: d[1], p1: d[2], p2: d[3], k3: d[4] },
+        }
+    }
+
+    /// The downward camera's intrinsics for vision-core (an ideal pinhole).
+    pub fn down_camera_model(&self) -> CameraModel {
+        let c = &self.down_camera;
+        CameraModel {
+            width: c.width_px,
+            height: c.height_px,
+            fx: c.fx_px as f32,
+            fy: c.fy_px as f32,
+            cx: c.cx_px as f32,
+            cy: c.cy_px as f32,
+            distortion: Distortion::default(),
+        }
+    }
+
+    /// The downward camera's mount.
+    pub fn down_camera_mount(&self) -> CameraMount {
+        let c = &self.down_camera;
+        let [r, p, y] = c.mount_rotation_deg.map(|a| geometry::deg(a as f32));
+        let extra = Mat3::from_euler_zyx(r, p, y);
+        CameraMount {
+            body_from_camera: extra.mul_mat(&BODY_FROM_DOWN_CAMERA),
+            offset_body_m: Vec3::from_array(c.mount_offset_body_m.map(|v| v as f32)),
         }
     }
 

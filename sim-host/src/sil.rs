@@ -4,11 +4,13 @@
 //! commands held, samples the IMU, the magnetometer and, at the camera rate, the forward camera. The ground
 //! station measures each frame (full rendered image through vision-core's detector, or the analytic
 //! projection with edge noise) and sends the measurement over a link with latency and jitter; operator
-//! commands and heartbeats go the same way. At the control rate the flight stack's `step` runs with the IMU
+//! commands and heartbeats go the same way. At the downward camera's rate it renders the floor (or projects
+//! floor points analytically), computes the optical flow of each frame pair and sends its statistics. At the control rate the flight stack's `step` runs with the IMU
 //! samples and the messages delivered since the last step. A run is a pure function of
 //! (scenario, seed, camera mode).
+use crate::downward::{CamPose, GroundFlow, analytic_flow};
 use crate::model::{ModelParams, Quadrotor, quat_to_mat};
-use crate::render::ForwardRenderer;
+use crate::render::{DownPose, DownRenderer, ForwardRenderer};
 use crate::rng::{SimRng, splitmix64};
 use crate::scenario::Scenario;
 use crate::sensors::ImuModel;
@@ -16,10 +18,11 @@ use crate::vision::GroundVision;
 use anyhow::Result;
 use control_core::estimator::ImuSample;
 use control_core::{Command, FlightMode};
+use flight_core::flow::FlowOutcome;
 use flight_core::{FlightStack, StepInput, StepOutput};
 use geometry::frames::Attitude;
 use geometry::{Mat3, Vec3};
-use protocol::{Uplink, VisionMeasurement};
+use protocol::{FlowMeasurement, Uplink, VisionMeasurement};
 use std::collections::VecDeque;
 use vision_core::observation::project_observation;
 
@@ -71,6 +74,19 @@ pub struct Record {
     pub mode: FlightMode,
     /// Age of the last accepted vision fix (s; infinite before the first).
     pub fix_age_s: f32,
+}
+
+/// One optical-flow velocity the flight code measured, against the truth (world frame).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FlowRecord {
+    /// Mid-time of the frame pair (s).
+    pub t_s: f64,
+    /// Measured horizontal velocity, world x and y (m/s).
+    pub measured: [f64; 2],
+    /// True mean velocity over the frame pair, world x and y (m/s).
+    pub truth: [f64; 2],
+    /// Standard deviation the flight code gave it (m/s).
+    pub std_m_s: f64,
 }
 
 /// Per-axis accumulator of squared errors.
@@ -127,6 +143,17 @@ pub struct RunStats {
     pub landed: bool,
     /// Fastest touchdown (m/s).
     pub max_touchdown_speed_m_s: f64,
+    /// Whether the vehicle has the downward camera.
+    pub flow_camera: bool,
+    /// Downward-camera frames captured.
+    pub down_frames: u32,
+    /// Flow measurements the flight code received, and what became of them.
+    pub flow: flight_core::flow::FlowCounters,
+    /// Flow velocities the estimator accepted and rejected (innovation gate).
+    pub flow_fused: [u32; 2],
+    /// Flow velocity minus the true mean velocity of its frame pair, RMS over world x and y while airborne
+    /// (m/s; NaN without flow).
+    pub flow_rms_error_m_s: [f64; 2],
 }
 
 /// A software-in-the-loop run in progress.
@@ -139,6 +166,15 @@ pub struct Sil {
     imu: ImuModel,
     renderer: Option<ForwardRenderer>,
     vision: GroundVision,
+    down_renderer: Option<DownRenderer>,
+    ground_flow: Option<GroundFlow>,
+    down_rng: SimRng,
+    down_index: u64,
+    next_down_us: u64,
+    prev_down: Option<(u64, CamPose, [f64; 3], [f64; 4])>,
+    flow_truth: VecDeque<(u64, [[f64; 3]; 3], [f64; 3])>,
+    flow_records: Vec<FlowRecord>,
+    flow_err: Rms,
     link: VecDeque<(u64, Uplink)>,
     link_rng: SimRng,
     edge_rng: SimRng,
@@ -201,6 +237,11 @@ impl Sil {
             CameraMode::Rendered => Some(ForwardRenderer::new(scenario)?),
             CameraMode::Analytic => None,
         };
+        let down = scenario.down_camera.enabled;
+        let down_renderer = match mode {
+            CameraMode::Rendered if down => Some(DownRenderer::new(scenario)?),
+            _ => None,
+        };
         Ok(Self {
             scenario: scenario.clone(),
             seed,
@@ -210,6 +251,15 @@ impl Sil {
             imu: ImuModel::new(&scenario.imu, seed),
             renderer,
             vision: GroundVision::new(scenario),
+            down_renderer,
+            ground_flow: down.then(|| GroundFlow::new(scenario)),
+            down_rng: SimRng::stream(seed, "down-camera"),
+            down_index: 0,
+            next_down_us: 0,
+            prev_down: None,
+            flow_truth: VecDeque::new(),
+            flow_records: Vec::new(),
+            flow_err: Rms::default(),
             link: VecDeque::new(),
             link_rng: SimRng::stream(seed, "link-jitter"),
             edge_rng: SimRng::stream(seed, "analytic-edges"),
@@ -228,7 +278,7 @@ impl Sil {
             motor_cmd: [0.0; 4],
             last_out: None,
             records: Vec::new(),
-            stats: RunStats::default(),
+            stats: RunStats { flow_camera: down, ..RunStats::default() },
             tracking: Rms::default(),
             estimate: Rms::default(),
             tracking_since: None,
@@ -258,6 +308,11 @@ impl Sil {
     /// The statistics so far.
     pub fn stats(&self) -> &RunStats {
         &self.stats
+    }
+
+    /// The flow velocities measured, against the truth.
+    pub fn flow_records(&self) -> &[FlowRecord] {
+        &self.flow_records
     }
 
     /// The simulated vehicle.
@@ -318,6 +373,111 @@ impl Sil {
         self.frame_index += 1;
         self.stats.frames += 1;
         self.next_frame_us = ((self.frame_index as f64) * 1e6 / lat.rate_hz).round() as u64;
+    }
+
+    fn down_pose(&self) -> (DownPose, CamPose) {
+        let st = &self.quad.state;
+        let r = quat_to_mat(st.q);
+        let mount = self.scenario.down_camera_mount();
+        let r_bc = mount.body_from_camera.m.map(|row| row.map(|v| v as f64));
+        let off = mount.offset_body_m.to_array().map(|v| v as f64);
+        let mv = |m: &[[f64; 3]; 3], v: [f64; 3]| {
+            [0, 1, 2].map(|i| m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2])
+        };
+        let mut r_wc = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                r_wc[i][j] = (0..3).map(|k| r[i][k] * r_bc[k][j]).sum();
+            }
+        }
+        let off_w = mv(&r, off);
+        let center = [0, 1, 2].map(|k| st.p[k] + off_w[k]);
+        let w = st.w;
+        let wxr =
+            [w[1] * off[2] - w[2] * off[1], w[2] * off[0] - w[0] * off[2], w[0] * off[1] - w[1] * off[0]];
+        let wxr_w = mv(&r, wxr);
+        let pose = DownPose {
+            r_wc,
+            center,
+            velocity: [0, 1, 2].map(|k| st.v[k] + wxr_w[k]),
+            omega_world: mv(&r, w),
+        };
+        let cam = CamPose {
+            r_wc: Mat3 { m: r_wc.map(|row| row.map(|v| v as f32)) },
+            center: Vec3::new(center[0] as f32, center[1] as f32, center[2] as f32),
+        };
+        (pose, cam)
+    }
+
+    fn capture_down_frame(&mut self) {
+        let cfg = self.scenario.down_camera.clone();
+        let (pose, cam_pose) = self.down_pose();
+        let dt = 1.0 / cfg.rate_hz;
+        // The ground station's guess of the rotation over the interval: the last telemetry's rates.
+        let rates = self.last_out.map(|o| o.control.estimate.rates_rad_s).unwrap_or(Vec3::ZERO);
+        let r_bc = self.scenario.down_camera_mount().body_from_camera;
+        let predicted = r_bc.transpose().mul_vec(rates * dt as f32);
+        let result = match (&self.down_renderer, &mut self.ground_flow) {
+            (Some(r), Some(fl)) => {
+                let mut settings = r.default_settings();
+                let mut s = self.seed ^ 0x0D0D_0000_0000_0000 ^ self.down_index;
+                settings.seed = splitmix64(&mut s);
+                let img = r.render(&pose, &settings);
+                fl.add(&img, predicted)
+            }
+            (None, Some(fl)) => self.prev_down.map(|(_, prev, _, _)| {
+                analytic_flow(fl.camera(), fl.params(), &prev, &cam_pose, 0.08, &mut self.down_rng, predicted)
+            }),
+            _ => None,
+        };
+        let st = self.quad.state;
+        if let (Some(result), Some((t_prev, _, p_prev, q_prev))) = (result, self.prev_down) {
+            let msg = FlowMeasurement {
+                t_prev_us: t_prev,
+                t_next_us: self.t_us,
+                frame_seq: self.down_index as u32,
+                result,
+            };
+            let deliver = self.t_us + (cfg.latency_s * 1e6).round() as u64;
+            self.send(deliver, Uplink::Flow(msg));
+            // The truth over the pair: the mean velocity and the attitude at mid-interval.
+            let dts = (self.t_us - t_prev) as f64 * 1e-6;
+            let v = [0, 1, 2].map(|k| (st.p[k] - p_prev[k]) / dts);
+            let mut q = [0.0; 4];
+            let sign = if (0..4).map(|k| st.q[k] * q_prev[k]).sum::<f64>() < 0.0 { -1.0 } else { 1.0 };
+            for k in 0..4 {
+                q[k] = q_prev[k] + sign * st.q[k];
+            }
+            let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let r_mid = quat_to_mat(q.map(|v| v / n));
+            self.flow_truth.push_back((self.t_us, r_mid, v));
+            while self.flow_truth.front().is_some_and(|(t, _, _)| t + 500_000 < self.t_us) {
+                self.flow_truth.pop_front();
+            }
+        }
+        self.prev_down = Some((self.t_us, cam_pose, st.p, st.q));
+        self.down_index += 1;
+        self.stats.down_frames += 1;
+        self.next_down_us = ((self.down_index as f64) * 1e6 / cfg.rate_hz).round() as u64;
+    }
+
+    /// Compares a flow velocity of the flight code with the truth of its frame pair.
+    fn score_flow(&mut self, t_next_us: u64, v_body: [f32; 2], std: f32) {
+        let Some(&(_, r, v)) = self.flow_truth.iter().find(|(t, _, _)| *t == t_next_us) else { return };
+        // The measured body velocity, with the true vertical body component, into the world frame.
+        let vb_true = [0, 1, 2].map(|k| r[0][k] * v[0] + r[1][k] * v[1] + r[2][k] * v[2]);
+        let vb = [v_body[0] as f64, v_body[1] as f64, vb_true[2]];
+        let vw = [0, 1, 2].map(|i| r[i][0] * vb[0] + r[i][1] * vb[1] + r[i][2] * vb[2]);
+        let t_s = t_next_us as f64 * 1e-6 - 0.5 / self.scenario.down_camera.rate_hz;
+        self.flow_records.push(FlowRecord {
+            t_s,
+            measured: [vw[0], vw[1]],
+            truth: [v[0], v[1]],
+            std_m_s: std as f64,
+        });
+        if self.was_airborne && !self.quad.on_ground {
+            self.flow_err.add([vw[0] - v[0], vw[1] - v[1], 0.0]);
+        }
     }
 
     fn operator(&mut self) {
@@ -385,6 +545,12 @@ impl Sil {
         self.stats.frames_solved = out.vision.solved;
         self.stats.frames_no_target = out.vision.no_target;
         self.stats.frames_rejected = out.vision.rejected;
+        self.stats.flow = out.flow_counters;
+        let ec = self.stack.control().estimator().counters();
+        self.stats.flow_fused = [ec.flow_accepted, ec.flow_rejected];
+        if let Some(FlowOutcome::Velocity { t_next_us, velocity, .. }) = out.flow {
+            self.score_flow(t_next_us, velocity.velocity_m_s, velocity.std_m_s);
+        }
         if st.passes_done > self.stats.passes_done {
             self.stats.passes_done = st.passes_done;
         }
@@ -472,6 +638,9 @@ impl Sil {
         if self.t_us >= self.next_frame_us {
             self.capture_frame();
         }
+        if self.scenario.down_camera.enabled && self.t_us >= self.next_down_us {
+            self.capture_down_frame();
+        }
         self.operator();
         if self.step_count.is_multiple_of(self.ctrl_every) {
             self.control_step();
@@ -503,6 +672,8 @@ impl Sil {
     pub fn finish(&mut self) -> RunStats {
         self.stats.rms_error_m = self.tracking.get();
         self.stats.estimate_rms_error_m = self.estimate.get();
+        let f = self.flow_err.get();
+        self.stats.flow_rms_error_m_s = [f[0], f[1]];
         self.stats.clone()
     }
 }

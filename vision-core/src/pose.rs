@@ -45,6 +45,9 @@ impl CameraMount {
     /// Forward camera at the vehicle's centre, looking along the body's x axis.
     pub const FORWARD_AT_CENTRE: CameraMount =
         CameraMount { body_from_camera: BODY_FROM_FORWARD_CAMERA, offset_body_m: Vec3::ZERO };
+    /// Downward camera at the vehicle's centre, looking along the body's -z axis, image top forward.
+    pub const DOWN_AT_CENTRE: CameraMount =
+        CameraMount { body_from_camera: geometry::frames::BODY_FROM_DOWN_CAMERA, offset_body_m: Vec3::ZERO };
 }
 
 /// Where the rotation comes from.

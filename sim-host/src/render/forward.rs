@@ -93,7 +93,7 @@ impl TextureStack {
 }
 
 /// Four frames' worth of standard-normal noise, fixed for the renderer (per-frame windows at random offsets).
-fn noise_buffer(per_frame: usize) -> Vec<i8> {
+pub(super) fn noise_buffer(per_frame: usize) -> Vec<i8> {
     let table = NormalTable::new();
     let mut s = 0x005E_ED0F_u64;
     let n = 4 * per_frame + 4096;
@@ -110,14 +110,14 @@ fn noise_buffer(per_frame: usize) -> Vec<i8> {
 
 /// Adding 2^23 to a float in `[0, 2^23)` leaves its value, rounded to the nearest integer (ties to even), in
 /// the low mantissa bits: an exact, branch-free conversion that vectorises.
-const MAGIC: f32 = 8_388_608.0;
+pub(super) const MAGIC: f32 = 8_388_608.0;
 /// 1.5 * 2^23: keeps `v - 0.5 + MAGIC_FLOOR` in `[2^23, 2^24)` (unit spacing) for `-2^22 <= v - 0.5 < 2^22`.
 const MAGIC_FLOOR: f32 = 12_582_912.0;
 
 /// Index of the texel containing `v` (texel `i` spans `[i, i + 1)`), as a float, for `0 <= v < 2^22`: the
 /// nearest integer to `v - 0.5`, so exactly `floor(v)` except at integer `v`, where ties go to even.
 #[inline(always)]
-fn floor_f(v: f32) -> f32 {
+pub(super) fn floor_f(v: f32) -> f32 {
     (v - 0.5 + MAGIC_FLOOR) - MAGIC_FLOOR
 }
 
@@ -131,7 +131,7 @@ fn floor_small(v: f32) -> i32 {
 /// (`clamp` would keep the NaN).
 #[inline(always)]
 #[allow(clippy::manual_clamp)]
-fn quantise(v: f32) -> u8 {
+pub(super) fn quantise(v: f32) -> u8 {
     (v.max(0.0).min(255.0) + MAGIC).to_bits() as u8
 }
 
@@ -188,7 +188,7 @@ impl ForwardRenderer {
                     TEXEL_M,
                 ),
                 &Texture::bake(
-                    TextureKind::Concrete,
+                    sc.floor_texture.kind(),
                     sc.floor_texture_contrast,
                     seed ^ 0xF100,
                     [x0, 0.0],

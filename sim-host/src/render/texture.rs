@@ -37,8 +37,11 @@ fn value_noise(x: f64, y: f64, cell: f64, seed: u64) -> f32 {
 pub enum TextureKind {
     /// Smooth plaster: large soft blotches and a fine grain.
     Plaster,
-    /// Concrete: blotches, grain and dark and light speckles (good features for optical flow).
+    /// Concrete: blotches, grain and sparse dark and light speckles.
     Concrete,
+    /// Speckled vinyl: dense chips of about a centimetre over a fine grain (good features for optical flow
+    /// from a metre up).
+    Speckled,
 }
 
 impl Texture {
@@ -59,6 +62,7 @@ impl Texture {
             let octaves: &[(f64, f32)] = match kind {
                 TextureKind::Plaster => &[(0.5, 0.35), (0.12, 0.3), (0.03, 0.2), (0.008, 0.15)],
                 TextureKind::Concrete => &[(0.4, 0.25), (0.08, 0.25), (0.02, 0.25), (0.006, 0.25)],
+                TextureKind::Speckled => &[(0.3, 0.15), (0.05, 0.15), (0.01, 0.2)],
             };
             for j in 0..height {
                 for i in 0..width {
@@ -76,6 +80,18 @@ impl Texture {
                             v -= 1.2;
                         } else if h.is_multiple_of(89) {
                             v += 0.9;
+                        }
+                    }
+                    if kind == TextureKind::Speckled {
+                        // Chips: cells of 12 mm on a grid jittered per row, 40 % of them lighter or darker.
+                        let cell = 0.012;
+                        let (cx, cy) = ((x / cell).floor() as i64, (y / cell).floor() as i64);
+                        let mut s = seed
+                            ^ (cx as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                            ^ (cy as u64).wrapping_mul(0xD6E8_FEB8_6659_FD93);
+                        let h = splitmix64(&mut s);
+                        if h % 10 < 4 {
+                            v += ((h >> 32) as f32 / u32::MAX as f32) * 2.4 - 1.2;
                         }
                     }
                     data[j * width + i] = (1.0 + contrast as f32 * v).max(0.05);

@@ -1,0 +1,45 @@
+//! Benchmark of the downward camera's optical flow: one frame pair at the default resolution (160x120) with
+//! the default features (an 8x6 grid), the downward renderer, and the flow's stages.
+use criterion::{Criterion, criterion_group, criterion_main};
+use geometry::frames::{Attitude, BODY_FROM_DOWN_CAMERA};
+use geometry::{Vec3, deg};
+use sim_host::Scenario;
+use sim_host::downward::GroundFlow;
+use sim_host::render::{DownPose, DownRenderer};
+use std::hint::black_box;
+
+fn bench(c: &mut Criterion) {
+    let scenario = Scenario::paper();
+    let renderer = DownRenderer::new(&scenario).expect("renderer");
+    let r_wb = Attitude::new(deg(2.0), deg(-3.0), deg(5.0)).world_from_body();
+    let r_wc = r_wb.mul_mat(&BODY_FROM_DOWN_CAMERA).m.map(|r| r.map(|v| v as f64));
+    let mut settings = renderer.default_settings();
+    settings.seed = 1;
+    // The paper's altitude, moving at the sweep's speed and turning slowly.
+    let pose = |t: f64| DownPose {
+        r_wc,
+        center: [1.0 + 0.25 * t, 1.3, 0.8],
+        velocity: [0.25, 0.0, 0.0],
+        omega_world: [0.0, 0.0, 0.0],
+    };
+    let mut moving = pose(0.0);
+    moving.omega_world = [0.3, -0.2, 0.1];
+    c.bench_function("render_down_160x120", |bch| {
+        bch.iter(|| renderer.render(black_box(&moving), &settings))
+    });
+    let a = renderer.render(&pose(0.0), &settings);
+    settings.seed = 2;
+    let b = renderer.render(&pose(1.0 / 60.0), &settings);
+    let mut flow = GroundFlow::new(&scenario);
+    let s = flow.between(&a, &b, Vec3::ZERO).expect("flow");
+    println!(
+        "flow pair 160x120: {} of {} features tracked, median flow {:?} px",
+        s.inliers, s.selected, s.median_flow_px
+    );
+    c.bench_function("flow_pair_160x120", |bch| {
+        bch.iter(|| flow.between(black_box(&a), black_box(&b), Vec3::ZERO))
+    });
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

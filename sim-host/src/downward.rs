@@ -1,0 +1,158 @@
+//! The ground station's side of the downward camera: optical flow of each frame pair, from rendered images
+//! (vision-core's pyramidal Lucas-Kanade) or, in the fast analytic mode, from exactly projected floor points
+//! with tracking noise, both summarised by the same robust statistics.
+use crate::imageio::GrayImage;
+use crate::rng::SimRng;
+use crate::scenario::Scenario;
+use geometry::{Mat3, Vec2, Vec3};
+use serde_json::{Value, json};
+use vision_core::CameraModel;
+use vision_core::flow::{self, FlowParams, FlowStats, FlowWorkspace, NoFlowReason};
+
+/// A camera pose in the world: rotation (world from camera) and centre.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CamPose {
+    /// World from camera.
+    pub r_wc: Mat3,
+    /// Centre (m).
+    pub center: Vec3,
+}
+
+/// The flow of frame pairs, frame after frame.
+pub struct GroundFlow {
+    camera: CameraModel,
+    params: FlowParams,
+    ws: Box<FlowWorkspace>,
+    has_prev: bool,
+}
+
+impl GroundFlow {
+    /// For the scenario's downward camera, with the default flow parameters.
+    pub fn new(s: &Scenario) -> Self {
+        Self::with_params(s.down_camera_model(), FlowParams::default())
+    }
+
+    /// For a camera and parameters.
+    pub fn with_params(camera: CameraModel, params: FlowParams) -> Self {
+        Self { camera, params, ws: Box::new(FlowWorkspace::new()), has_prev: false }
+    }
+
+    /// The camera.
+    pub fn camera(&self) -> &CameraModel {
+        &self.camera
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &FlowParams {
+        &self.params
+    }
+
+    /// Adds a frame; from the second one on, returns the flow from the previous frame, seeded with the
+    /// predicted camera rotation over the interval (camera frame, rad).
+    pub fn add(
+        &mut self,
+        img: &GrayImage,
+        predicted_rotation_cam: Vec3,
+    ) -> Option<Result<FlowStats, NoFlowReason>> {
+        let r =
+            flow::add_frame(&img.view(), &self.camera, &self.params, predicted_rotation_cam, &mut self.ws);
+        let first = !self.has_prev;
+        self.has_prev = true;
+        match r {
+            Ok(None) => None,
+            Ok(Some(s)) => Some(Ok(s)),
+            Err(e) if first => {
+                // A first frame of the wrong size: the next one starts again.
+                self.ws.reset();
+                self.has_prev = false;
+                Some(Err(e))
+            }
+            Err(e) => Some(Err(e)),
+        }
+    }
+
+    /// The flow between two frames (a fresh pair).
+    pub fn between(
+        &mut self,
+        prev: &GrayImage,
+        next: &GrayImage,
+        predicted_rotation_cam: Vec3,
+    ) -> Result<FlowStats, NoFlowReason> {
+        flow::flow_between(
+            &prev.view(),
+            &next.view(),
+            &self.camera,
+            &self.params,
+            predicted_rotation_cam,
+            &mut self.ws,
+        )
+    }
+}
+
+/// The analytic stand-in for the tracker: floor points on a grid of the earlier frame, projected exactly into
+/// the later one, with Gaussian tracking noise (px); points whose view leaves the image are lost.
+pub fn analytic_flow(
+    camera: &CameraModel,
+    params: &FlowParams,
+    prev: &CamPose,
+    next: &CamPose,
+    noise_px: f64,
+    rng: &mut SimRng,
+    predicted_rotation_cam: Vec3,
+) -> Result<FlowStats, NoFlowReason> {
+    let (w, h) = (camera.width as f32, camera.height as f32);
+    let [gx, gy] = params.grid.map(|g| g.max(1) as usize);
+    let margin = params.window_half as f32 + 2.0;
+    let mut tracks = Vec::with_capacity(gx * gy);
+    let r_cw_next = next.r_wc.transpose();
+    for j in 0..gy {
+        for i in 0..gx {
+            let u = margin
+                + (i as f32 + 0.5 + 0.6 * (rng.uniform() as f32 - 0.5)) * (w - 2.0 * margin) / gx as f32;
+            let v = margin
+                + (j as f32 + 0.5 + 0.6 * (rng.uniform() as f32 - 0.5)) * (h - 2.0 * margin) / gy as f32;
+            let p = Vec2::new(u, v);
+            let n = camera.pixel_to_normalized(p);
+            let d = prev.r_wc.mul_vec(Vec3::new(n.x, n.y, 1.0));
+            if d.z > -1e-3 {
+                continue;
+            }
+            let t = -prev.center.z / d.z;
+            let world = prev.center + d * t;
+            let c = r_cw_next.mul_vec(world - next.center);
+            if c.z <= 1e-3 {
+                continue;
+            }
+            let q = camera.normalized_to_pixel(Vec2::new(c.x / c.z, c.y / c.z));
+            let noise = Vec2::new((noise_px * rng.normal()) as f32, (noise_px * rng.normal()) as f32);
+            let q = q + noise;
+            if q.x < margin || q.y < margin || q.x > w - 1.0 - margin || q.y > h - 1.0 - margin {
+                continue;
+            }
+            tracks.push((p, q - p));
+        }
+    }
+    flow::stats_from_tracks(&tracks, gx * gy, camera, params, predicted_rotation_cam)
+}
+
+/// The JSON of one flow for the CLI: `{"status": "ok", "flow_px", "tracked", "quality", ["velocity_m_s"]}`.
+pub fn flow_json(s: &FlowStats, velocity_body: Option<[f32; 2]>) -> Value {
+    let mut v = json!({
+        "status": "ok",
+        "flow_px": [s.median_flow_px.x, s.median_flow_px.y],
+        "tracked": s.inliers,
+        "selected": s.selected,
+        "quality": s.quality,
+        "residual_px": s.residual_rms,
+    });
+    if let Some(vel) = velocity_body {
+        v["velocity_m_s"] = json!(vel);
+        v["velocity_frame"] = json!("body (x forward, y left)");
+    }
+    v
+}
+
+/// The JSON of a frame pair without flow.
+pub fn no_flow_json(why: NoFlowReason) -> Value {
+    json!({"status": "no_flow", "reason": why.code(), "message": why.describe(), "quality": 0.0})
+}
