@@ -312,6 +312,37 @@ mod tests {
     }
 
     #[test]
+    fn flow_measurements_round_trip_and_fit_the_link() {
+        use vision_core::flow::{FlowStats, NoFlowReason};
+        let stats = FlowStats {
+            flow: geometry::Vec2::new(-0.0123, 0.0041),
+            predicted_rotation: geometry::Vec3::new(0.001, -0.002, 0.0005),
+            mean_pos: geometry::Vec2::new(0.01, -0.02),
+            mean_sq: [0.09, 0.05, -0.001],
+            inliers: 44,
+            selected: 48,
+            residual_rms: 0.0004,
+            median_flow_px: geometry::Vec2::new(-1.7, 0.57),
+            quality: 0.92,
+        };
+        let ok = crate::FlowMeasurement {
+            t_prev_us: 10_000_000,
+            t_next_us: 10_016_667,
+            frame_seq: 600,
+            result: Ok(stats),
+        };
+        let none = crate::FlowMeasurement { result: Err(NoFlowReason::NoTexture), ..ok };
+        let mut dec = Decoder::new();
+        for m in [Uplink::Flow(ok), Uplink::Flow(none)] {
+            let f = frame_of(&m);
+            // At 60 Hz, 96 bytes are 5.8 kB/s: half of a 115.2 kbit/s telemetry radio, the rest for vision.
+            assert!(f.len() <= 96, "{} bytes", f.len());
+            let got: Vec<Result<Uplink, FrameError>> = f.iter().filter_map(|b| dec.push(*b)).collect();
+            assert_eq!(got, vec![Ok(m)]);
+        }
+    }
+
+    #[test]
     fn round_trip_and_resync() {
         let msgs = [Uplink::Heartbeat, Uplink::Command(Command::TakeOff), Uplink::Command(Command::Land)];
         let mut stream = vec![0x55, 0x13, 0x00]; // garbage, then a delimiter

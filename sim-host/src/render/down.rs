@@ -18,7 +18,12 @@ use anyhow::{Result, bail};
 const TEXEL_M: f64 = 0.004;
 /// Mip levels (texels 4, 8, 16, 32, 64 mm).
 const MIPS: usize = 5;
-const LOD_BIAS: f64 = 2.0;
+/// Texels per pixel footprint at the chosen level: above 1, so that the texture (bilinear between texels) is
+/// smoother than the pixel grid; with the optics blur this keeps the image nearly band-limited.
+const LOD_BIAS: f64 = 1.4;
+/// Half width of the band around a level boundary where two levels are blended: elsewhere one level is
+/// sampled (half the cost), and the image still changes continuously with the altitude.
+const BLEND_BAND: f64 = 0.15;
 /// Standard-normal noise is stored as `round(32 n)` in an `i8`.
 const NOISE_SCALE: f32 = 32.0;
 /// Most sub-frames per exposure.
@@ -60,7 +65,7 @@ pub struct DownSettings {
     pub noise_sigma: f64,
     /// Exposure time (s).
     pub exposure_time_s: f64,
-    /// Optical blur (px, Gaussian sigma; a 3-tap kernel, so up to about 1 px).
+    /// Optical blur (px, Gaussian sigma; a 5-tap kernel, so up to about 1.5 px).
     pub blur_sigma_px: f64,
     /// Seed of this frame's sensor noise.
     pub seed: u64,
@@ -225,7 +230,7 @@ impl DownRenderer {
             self.accumulate(&r, c, settings.light_gain as f32 / k as f32, &mut acc);
         }
         if settings.blur_sigma_px > 0.0 {
-            blur3(&mut acc, w, h, settings.blur_sigma_px);
+            blur5(&mut acc, w, h, settings.blur_sigma_px);
         }
         let scale = 255.0 * self.exposure * self.albedo;
         let sigma = settings.noise_sigma as f32 / NOISE_SCALE;
@@ -247,14 +252,19 @@ impl DownRenderer {
         let du = ex.map(|v| v / self.fx);
         let dv = ey.map(|v| v / self.fy);
         let d0 = [0, 1, 2].map(|i| ez[i] - self.cx * du[i] - self.cy * dv[i]);
-        // Mip level from the footprint of a pixel at the image centre (m per px), trilinear between two levels.
+        // Mip level from the footprint of a pixel at the image centre (m per px); two levels are blended only
+        // near the boundary between them.
         let dz_centre = ez[2];
         let range = if dz_centre < -1e-3 { c[2] / -dz_centre } else { 1e3 };
         let footprint = range / self.fx.min(self.fy);
         let lod = (LOD_BIAS * footprint / TEXEL_M).max(1.0).log2().min((MIPS - 1) as f64);
         let l0 = (lod.floor() as usize).min(MIPS - 1);
         let l1 = (l0 + 1).min(MIPS - 1);
-        let t = (lod - l0 as f64) as f32;
+        let frac = lod - l0 as f64;
+        let t = (((frac - (0.5 - BLEND_BAND)) / (2.0 * BLEND_BAND)).clamp(0.0, 1.0)) as f32;
+        // One level when the blend weight is 0 or 1.
+        let (l0, t) = if t >= 1.0 { (l1, 0.0) } else { (l0, t) };
+        let l1 = if t > 0.0 { l1 } else { l0 };
         let (m0, m1) = (&self.mips[l0], &self.mips[l1]);
         // Per pixel in f32 relative to the camera's ground point (small numbers, exact enough), with the
         // texture coordinates offset by the camera's own (the f64 part is per frame).
@@ -284,7 +294,11 @@ impl DownRenderer {
                 (*x, *y) = (tt * dx, tt * dy);
             }
             s0.sample_row(&xs, &ys, &mut scratch, &mut t0);
-            s1.sample_row(&xs, &ys, &mut scratch, &mut t1);
+            if t > 0.0 {
+                s1.sample_row(&xs, &ys, &mut scratch, &mut t1);
+            } else {
+                t1.copy_from_slice(&t0);
+            }
             let row = &mut acc[v * w..(v + 1) * w];
             for ((((a, &x), &f), &p0), &p1) in row.iter_mut().zip(&xs).zip(&flat).zip(&t0).zip(&t1) {
                 let tex = if f { 1.0 } else { p0 + t * (p1 - p0) };
@@ -316,25 +330,35 @@ struct Sampler<'a> {
     ymax: i32,
 }
 
-/// Separable 3-tap Gaussian blur (edges clamped): the lens and the pixel's area, which keep the image nearly
+/// Separable 5-tap Gaussian blur (edges clamped): the lens and the pixel's area, which keep the image nearly
 /// band-limited, as sub-pixel tracking assumes of a real camera.
-fn blur3(img: &mut [f32], w: usize, h: usize, sigma: f64) {
-    let e = (-1.0 / (2.0 * sigma * sigma)).exp();
-    let (k0, k1) = ((1.0 / (1.0 + 2.0 * e)) as f32, (e / (1.0 + 2.0 * e)) as f32);
+fn blur5(img: &mut [f32], w: usize, h: usize, sigma: f64) {
+    let g = |i: f64| (-i * i / (2.0 * sigma * sigma)).exp();
+    let sum = g(0.0) + 2.0 * g(1.0) + 2.0 * g(2.0);
+    let k = [g(0.0) / sum, g(1.0) / sum, g(2.0) / sum].map(|v| v as f32);
     let mut tmp = vec![0.0f32; w * h];
+    let cl = |i: isize, n: usize| i.clamp(0, n as isize - 1) as usize;
     for y in 0..h {
         let r = &img[y * w..(y + 1) * w];
         let o = &mut tmp[y * w..(y + 1) * w];
-        o[0] = k0 * r[0] + k1 * (r[0] + r[1]);
-        for x in 1..w - 1 {
-            o[x] = k0 * r[x] + k1 * (r[x - 1] + r[x + 1]);
+        // Interior without clamping (vectorisable), then the two columns at each edge.
+        for (o, t) in o[2..w - 2].iter_mut().zip(r.windows(5)) {
+            *o = k[0] * t[2] + k[1] * (t[1] + t[3]) + k[2] * (t[0] + t[4]);
         }
-        o[w - 1] = k0 * r[w - 1] + k1 * (r[w - 2] + r[w - 1]);
+        for x in [0, 1, w - 2, w - 1] {
+            let xi = x as isize;
+            o[x] = k[0] * r[x]
+                + k[1] * (r[cl(xi - 1, w)] + r[cl(xi + 1, w)])
+                + k[2] * (r[cl(xi - 2, w)] + r[cl(xi + 2, w)]);
+        }
     }
     for y in 0..h {
-        let (up, down) = (y.saturating_sub(1), (y + 1).min(h - 1));
-        for x in 0..w {
-            img[y * w + x] = k0 * tmp[y * w + x] + k1 * (tmp[up * w + x] + tmp[down * w + x]);
+        let yi = y as isize;
+        let (u2, u1, d1, d2) = (cl(yi - 2, h), cl(yi - 1, h), cl(yi + 1, h), cl(yi + 2, h));
+        let (r_u2, r_u1, r_c) = (&tmp[u2 * w..u2 * w + w], &tmp[u1 * w..u1 * w + w], &tmp[y * w..y * w + w]);
+        let (r_d1, r_d2) = (&tmp[d1 * w..d1 * w + w], &tmp[d2 * w..d2 * w + w]);
+        for (x, o) in img[y * w..(y + 1) * w].iter_mut().enumerate() {
+            *o = k[0] * r_c[x] + k[1] * (r_u1[x] + r_d1[x]) + k[2] * (r_u2[x] + r_d2[x]);
         }
     }
 }

@@ -239,6 +239,7 @@ impl ForwardRenderer {
         let mut xs = vec![0.0f32; w];
         let mut bs = vec![0.0f32; w];
         let mut tex = vec![0.0f32; w];
+        let mut lit = vec![0.0f32; w];
         let scale = 255.0 * self.exposure;
         let (g0, [gx, gz]) = (settings.light_gain as f32, settings.light_gradient_per_m.map(|v| v as f32));
         let (lcx, lcz) = (self.line_center[0] as f32, self.line_center[2] as f32);
@@ -255,15 +256,23 @@ impl ForwardRenderer {
             let yn = (v as f64 - self.cy) / self.fy;
             let xn0 = -self.cx / self.fx;
             let d0 = [0, 1, 2].map(|k| (ex[k] * xn0 + ey[k] * yn + ez[k]) as f32);
-            // Paint coverage of this row (exact box-filter areas; shapes are assumed not to overlap).
-            cov_sum.fill(0.0);
-            for p in paint.iter_mut() {
-                p.fill(0.0);
-            }
+            // Paint coverage of this row (exact box-filter areas; shapes are assumed not to overlap). Most rows
+            // have none: they take the plain shading path below.
+            let mut painted_row = false;
             for (p, albedo, y0, y1) in &polys {
-                if (v as i64) < *y0 || (v as i64) > *y1 || row_coverage(p, v as i64, &mut cov).is_none() {
+                if (v as i64) < *y0 || (v as i64) > *y1 {
                     continue;
                 }
+                if !painted_row {
+                    cov_sum.fill(0.0);
+                    for p in paint.iter_mut() {
+                        p.fill(0.0);
+                    }
+                }
+                if row_coverage(p, v as i64, &mut cov).is_none() {
+                    continue;
+                }
+                painted_row = true;
                 for (ch, plane) in paint.iter_mut().enumerate() {
                     for (q, &k) in plane.iter_mut().zip(&cov) {
                         *q += k * albedo[ch];
@@ -328,21 +337,58 @@ impl ForwardRenderer {
                 *i = floor_small((floor_f(fb) + row0) * st.width_f + fx);
                 *g = (g0 * (1.0 + gx * (x - lcx) + gz * (wf * b - lcz))).max(0.0) * scale;
             }
-            // Pass 2: texture fetch.
+            // Pass 2: texture fetch, and its product with the illumination (shared by the three channels of
+            // the unpainted rows).
             for (t, &i) in tex.iter_mut().zip(&idx) {
                 *t = st.data.get(i as usize).copied().unwrap_or(64) as f32 * (1.0 / 64.0);
             }
-            // Pass 3: shading, per channel (planar, vectorisable).
-            for (ch, plane) in planes.iter_mut().enumerate() {
-                let (wall_a, floor_a) = (self.wall_albedo[ch], self.floor_albedo[ch]);
-                for (((((p, &k), &pt), &wl), &g), &m) in
-                    plane.iter_mut().zip(&cov_sum).zip(&paint[ch]).zip(&on_wall).zip(&gain).zip(&tex)
-                {
-                    let base = floor_a + wl * (wall_a - floor_a);
-                    *p = g * (pt + (1.0 - k.min(1.0)) * base * m);
+            if !painted_row {
+                for (gm, (&g, &m)) in lit.iter_mut().zip(gain.iter().zip(&tex)) {
+                    *gm = g * m;
                 }
             }
-            // Pass 4: noise and quantisation per channel (vectorisable), then interleave.
+            // Pass 3: shading, per channel (planar, vectorisable); without blur, noise and quantisation in the
+            // same pass.
+            for (ch, plane) in planes.iter_mut().enumerate() {
+                let (wall_a, floor_a) = (self.wall_albedo[ch], self.floor_albedo[ch]);
+                let nz = &noise[(ch * h + v) * w..(ch * h + v + 1) * w];
+                let q = &mut qplanes[ch];
+                match (painted_row, blur) {
+                    (true, true) => {
+                        for (((((p, &k), &pt), &wl), &g), &m) in
+                            plane.iter_mut().zip(&cov_sum).zip(&paint[ch]).zip(&on_wall).zip(&gain).zip(&tex)
+                        {
+                            let base = floor_a + wl * (wall_a - floor_a);
+                            *p = g * (pt + (1.0 - k.min(1.0)) * base * m);
+                        }
+                    }
+                    (false, true) => {
+                        for ((p, &wl), &gm) in plane.iter_mut().zip(&on_wall).zip(&lit) {
+                            *p = (floor_a + wl * (wall_a - floor_a)) * gm;
+                        }
+                    }
+                    (true, false) => {
+                        for ((((((o, &k), &pt), &wl), &g), &m), &n) in q
+                            .iter_mut()
+                            .zip(&cov_sum)
+                            .zip(&paint[ch])
+                            .zip(&on_wall)
+                            .zip(&gain)
+                            .zip(&tex)
+                            .zip(nz)
+                        {
+                            let base = floor_a + wl * (wall_a - floor_a);
+                            *o = quantise(g * (pt + (1.0 - k.min(1.0)) * base * m) + sigma * n as f32);
+                        }
+                    }
+                    (false, false) => {
+                        for (((o, &wl), &gm), &n) in q.iter_mut().zip(&on_wall).zip(&lit).zip(nz) {
+                            *o = quantise((floor_a + wl * (wall_a - floor_a)) * gm + sigma * n as f32);
+                        }
+                    }
+                }
+            }
+            // Pass 4: interleave (or keep the linear values for the blur).
             if blur {
                 let out = &mut linear[3 * v * w..3 * (v + 1) * w];
                 for (((o, r), g), b) in
@@ -351,12 +397,6 @@ impl ForwardRenderer {
                     o.copy_from_slice(&[*r, *g, *b]);
                 }
             } else {
-                for ch in 0..3 {
-                    let nz = &noise[(ch * h + v) * w..(ch * h + v + 1) * w];
-                    for ((q, p), n) in qplanes[ch].iter_mut().zip(&planes[ch]).zip(nz) {
-                        *q = quantise(p + sigma * *n as f32);
-                    }
-                }
                 let px_row = &mut img.data[3 * v * w..3 * (v + 1) * w];
                 for (((px, r), g), b) in
                     px_row.chunks_exact_mut(3).zip(&qplanes[0]).zip(&qplanes[1]).zip(&qplanes[2])
