@@ -1,14 +1,15 @@
 //! `sim-host`: render camera frames, run the vision, fly the paper's experiment in simulation.
 //!
-//! Exit codes: 0 success; 1 bad input or option (message on stderr); 2 the frame has no target; 3 the
-//! simulated vehicle crashed.
+//! Exit codes: 0 success; 1 bad input or option (message on stderr); 2 the frame has no target (or the frame
+//! pair no flow); 3 the simulated vehicle crashed.
 use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use geometry::frames::Attitude;
 use geometry::{Vec3, deg};
 use sim_host::Scenario;
-use sim_host::imageio::{read_png_rgb, write_png_rgb};
-use sim_host::render::ForwardRenderer;
+use sim_host::downward::{GroundFlow, flow_json, no_flow_json};
+use sim_host::imageio::{GrayImage, read_png_gray, read_png_rgb, write_png_gray, write_png_rgb};
+use sim_host::render::{DownPose, DownRenderer, ForwardRenderer};
 use sim_host::vision::{GroundVision, PoseMethod, draw_overlay, no_target_json, pose_json};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -22,8 +23,8 @@ use vision_core::AttitudeSource;
     long_about = "Simulator, ground-station vision and tools for the wall-line quadrotor.\n\n\
         World frame: x along the wall and the line, y from the wall to the vehicle (the distance to the wall), \
         z up from the floor. Angles are in degrees; roll, pitch and yaw are all zero when the vehicle is level \
-        and faces the wall.\n\nExit codes: 0 success, 1 bad input or option, 2 no target in the frame, 3 the \
-        simulated vehicle crashed."
+        and faces the wall. Body frame: x forward, y left, z up.\n\nExit codes: 0 success, 1 bad input or \
+        option, 2 no target in the frame (or no flow between two frames), 3 the simulated vehicle crashed."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -71,10 +72,12 @@ struct FlyArgs {
     no_plots: bool,
 }
 
-#[derive(Clone, Copy, Debug, ValueEnum)]
+#[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
 enum CameraChoice {
-    /// The forward camera, looking at the wall.
+    /// The forward camera, looking at the wall (RGB).
     Forward,
+    /// The downward camera, looking at the floor (grey), for optical flow.
+    Down,
 }
 
 #[derive(Args, Debug)]
@@ -106,12 +109,51 @@ struct RenderArgs {
     /// Gaussian blur in pixels (default: the scenario's).
     #[arg(long)]
     blur: Option<f64>,
+    /// Downward camera: vehicle velocity VX,VY,VZ in m/s (world frame) during the exposure (motion blur).
+    #[arg(long, allow_hyphen_values = true, value_name = "VX,VY,VZ")]
+    velocity: Option<String>,
+    /// Downward camera: body angular rates WX,WY,WZ in deg/s during the exposure (motion blur).
+    #[arg(long, allow_hyphen_values = true, value_name = "WX,WY,WZ")]
+    rates: Option<String>,
+    /// Downward camera: exposure time in seconds (default: the scenario's).
+    #[arg(long)]
+    exposure_time: Option<f64>,
 }
 
 #[derive(Subcommand, Debug)]
 enum VisionCommand {
     /// Position of the vehicle from one forward-camera frame: prints one JSON object.
     Pose(PoseArgs),
+    /// Optical flow between two downward-camera frames, and the velocity it gives: prints one JSON object.
+    ///
+    /// {"status": "ok", "flow_px": [dx, dy], "tracked": n, "quality": q, "velocity_m_s": [vx, vy]} with the
+    /// velocity in the body frame (x forward, y left) when --dt and --range are given; the camera is taken to
+    /// look straight down from --range metres with no vertical motion. {"status": "no_flow", "reason": ..}
+    /// and exit code 2 when nothing can be tracked.
+    Flow(FlowArgs),
+}
+
+#[derive(Args, Debug)]
+struct FlowArgs {
+    /// The earlier frame (PNG; colour is converted to grey).
+    #[arg(long)]
+    prev: PathBuf,
+    /// The later frame.
+    #[arg(long)]
+    next: PathBuf,
+    /// Time between the frames in seconds.
+    #[arg(long, allow_hyphen_values = true)]
+    dt: Option<f64>,
+    /// Body angular rates WX,WY,WZ in rad/s over the interval (x forward, y left, z up): removes the rotation's
+    /// flow and seeds the tracking. Needs --dt.
+    #[arg(long, allow_hyphen_values = true, value_name = "WX,WY,WZ")]
+    gyro: Option<String>,
+    /// Distance from the camera to the floor along the optical axis, in metres. With --dt, gives the velocity.
+    #[arg(long, allow_hyphen_values = true)]
+    range: Option<f64>,
+    /// Scenario: a built-in name (`paper`) or a TOML file (the downward camera's intrinsics and mount).
+    #[arg(long, default_value = "paper")]
+    scenario: String,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -161,9 +203,83 @@ fn parse_floats<const N: usize>(s: &str, what: &str) -> Result<[f64; N]> {
     Ok(out)
 }
 
+fn render_down(a: &RenderArgs, scenario: &Scenario, pose: [f64; 6]) -> Result<ExitCode> {
+    let [x, y, z, roll, pitch, yaw] = pose;
+    if a.light_gradient.is_some() {
+        bail!(
+            "--light-gradient applies to the forward camera (the floor takes the scenario's gradient along x)"
+        );
+    }
+    let renderer = DownRenderer::new(scenario)?;
+    let mut settings = renderer.default_settings();
+    settings.seed = a.seed;
+    if let Some(g) = a.light_gain {
+        if !(g > 0.0 && g.is_finite()) {
+            bail!("--light-gain must be positive");
+        }
+        settings.light_gain = g;
+    }
+    if let Some(n) = a.noise {
+        if !(n >= 0.0 && n.is_finite()) {
+            bail!("--noise must be >= 0");
+        }
+        settings.noise_sigma = n;
+    }
+    if let Some(b) = a.blur {
+        if !(0.0..=1.5).contains(&b) {
+            bail!("--blur must lie in [0, 1.5] px for the downward camera");
+        }
+        settings.blur_sigma_px = b;
+    }
+    if let Some(e) = a.exposure_time {
+        if !(0.0..=0.1).contains(&e) {
+            bail!("--exposure-time must lie in [0, 0.1] s");
+        }
+        settings.exposure_time_s = e;
+    }
+    if !(z > 0.0) {
+        bail!("--pose: the downward camera needs the vehicle above the floor (z > 0)");
+    }
+    let att = Attitude::new(deg(roll as f32), deg(pitch as f32), deg(yaw as f32));
+    let mount = scenario.down_camera_mount();
+    let r_wb = att.world_from_body();
+    let r_wc = r_wb.mul_mat(&mount.body_from_camera);
+    let center = Vec3::new(x as f32, y as f32, z as f32) + r_wb.mul_vec(mount.offset_body_m);
+    let velocity = match &a.velocity {
+        Some(v) => parse_floats::<3>(v, "--velocity")?,
+        None => [0.0; 3],
+    };
+    let omega = match &a.rates {
+        Some(r) => {
+            let w = parse_floats::<3>(r, "--rates")?.map(|v| deg(v as f32));
+            r_wb.mul_vec(Vec3::from_array(w)).to_array().map(|v| v as f64)
+        }
+        None => [0.0; 3],
+    };
+    let pose = DownPose {
+        r_wc: r_wc.m.map(|row| row.map(|v| v as f64)),
+        center: center.to_array().map(|v| v as f64),
+        velocity,
+        omega_world: omega,
+    };
+    let img = renderer.render(&pose, &settings);
+    write_png_gray(&a.out, &img).with_context(|| format!("writing {}", a.out.display()))?;
+    eprintln!("wrote {} ({}x{}, grey)", a.out.display(), img.width, img.height);
+    Ok(ExitCode::SUCCESS)
+}
+
 fn render(a: &RenderArgs) -> Result<ExitCode> {
     let scenario = Scenario::load(&a.scenario)?;
-    let [x, y, z, roll, pitch, yaw] = parse_floats::<6>(&a.pose, "--pose")?;
+    let pose = parse_floats::<6>(&a.pose, "--pose")?;
+    if a.camera == CameraChoice::Down {
+        return render_down(a, &scenario, pose);
+    }
+    if a.velocity.is_some() || a.rates.is_some() || a.exposure_time.is_some() {
+        bail!(
+            "--velocity, --rates and --exposure-time model the downward camera's motion blur (--camera down)"
+        );
+    }
+    let [x, y, z, roll, pitch, yaw] = pose;
     let renderer = ForwardRenderer::new(&scenario)?;
     let mut settings = renderer.default_settings();
     settings.seed = a.seed;
@@ -188,7 +304,6 @@ fn render(a: &RenderArgs) -> Result<ExitCode> {
         }
         settings.blur_sigma_px = b;
     }
-    let _ = a.camera;
     let att = Attitude::new(deg(roll as f32), deg(pitch as f32), deg(yaw as f32));
     let mount = scenario.forward_camera_mount();
     let r_wb = att.world_from_body();
@@ -248,6 +363,68 @@ fn vision_pose(a: &PoseArgs) -> Result<ExitCode> {
         }
         Err(why) => {
             println!("{}", no_target_json(why));
+            Ok(ExitCode::from(2))
+        }
+    }
+}
+
+fn vision_flow(a: &FlowArgs) -> Result<ExitCode> {
+    let scenario = Scenario::load(&a.scenario)?;
+    let cam = scenario.down_camera_model();
+    let load = |p: &PathBuf| -> Result<GrayImage> {
+        let img = read_png_gray(p).with_context(|| format!("{}", p.display()))?;
+        if img.width != cam.width as usize || img.height != cam.height as usize {
+            bail!(
+                "{}: the image is {}x{} but the scenario's downward camera is {}x{}",
+                p.display(),
+                img.width,
+                img.height,
+                cam.width,
+                cam.height
+            );
+        }
+        Ok(img)
+    };
+    let (prev, next) = (load(&a.prev)?, load(&a.next)?);
+    if let Some(dt) = a.dt
+        && !(dt > 0.0 && dt.is_finite() && dt <= 1.0)
+    {
+        bail!("--dt must lie in (0, 1] s");
+    }
+    if let Some(r) = a.range
+        && !(r > 0.0 && r.is_finite())
+    {
+        bail!("--range must be positive");
+    }
+    if a.gyro.is_some() && a.dt.is_none() {
+        bail!("--gyro needs --dt (the rotation over the interval is the rates times dt)");
+    }
+    let r_bc = scenario.down_camera_mount().body_from_camera;
+    let rot_body = match (&a.gyro, a.dt) {
+        (Some(g), Some(dt)) => Vec3::from_array(parse_floats::<3>(g, "--gyro")?.map(|v| (v * dt) as f32)),
+        _ => Vec3::ZERO,
+    };
+    let rot_cam = r_bc.transpose().mul_vec(rot_body);
+    let mut flow = GroundFlow::new(&scenario);
+    match flow.between(&prev, &next, rot_cam) {
+        Ok(stats) => {
+            let velocity = match (a.dt, a.range) {
+                (Some(dt), Some(range)) => {
+                    let track_sigma = (0.05 / cam.fx) as f32;
+                    let v = stats
+                        .velocity(rot_cam, dt as f32, range as f32, Vec3::Z, 0.0, track_sigma)
+                        .context("degenerate geometry for the velocity")?;
+                    let vb = r_bc.mul_vec(Vec3::new(v.velocity_cam_m_s.x, v.velocity_cam_m_s.y, 0.0));
+                    Some([vb.x, vb.y])
+                }
+                (None, None) => None,
+                _ => bail!("the velocity needs both --dt and --range"),
+            };
+            println!("{}", flow_json(&stats, velocity));
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(why) => {
+            println!("{}", no_flow_json(why));
             Ok(ExitCode::from(2))
         }
     }
@@ -336,6 +513,7 @@ fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Render(a) => render(a),
         Command::Vision(VisionCommand::Pose(a)) => vision_pose(a),
+        Command::Vision(VisionCommand::Flow(a)) => vision_flow(a),
         Command::Fly(a) => fly(a),
     };
     match result {

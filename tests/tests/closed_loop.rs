@@ -16,10 +16,12 @@ fn fly(s: &Scenario, seed: u64, mode: CameraMode) -> RunStats {
     sil.run(s.mission.max_duration_s, |_| {})
 }
 
-/// The issue's bounds: RMS tracking error y, z <= 3 cm, x <= 5 cm; no crash; tilt within the bound.
+/// The issue's bounds: RMS tracking error y, z <= 3 cm, x <= 5 cm; no crash; tilt within the bound; with the
+/// downward camera, the flow velocity's RMS error <= 0.05 m/s in x and y and most frame pairs used.
 fn check(st: &RunStats, s: &Scenario, what: &str) {
     eprintln!(
-        "{what}: rms x {:.1} y {:.1} z {:.1} mm, estimate {:.1} {:.1} {:.1} mm, max tilt {:.2} deg, passes {}, landed {}",
+        "{what}: rms x {:.1} y {:.1} z {:.1} mm, estimate {:.1} {:.1} {:.1} mm, max tilt {:.2} deg, passes {}, landed {}, \
+         flow rms x {:.4} y {:.4} m/s ({} of {} pairs, {} fused, {} gated)",
         1e3 * st.rms_error_m[0],
         1e3 * st.rms_error_m[1],
         1e3 * st.rms_error_m[2],
@@ -28,9 +30,20 @@ fn check(st: &RunStats, s: &Scenario, what: &str) {
         1e3 * st.estimate_rms_error_m[2],
         st.max_tilt_deg,
         st.passes_done,
-        st.landed
+        st.landed,
+        st.flow_rms_error_m_s[0],
+        st.flow_rms_error_m_s[1],
+        st.flow.velocities,
+        st.flow.pairs,
+        st.flow_fused[0],
+        st.flow_fused[1],
     );
     assert!(!st.crashed, "{what}: crashed: {:?}", st.crash_reason);
+    if st.flow_camera {
+        let [fx, fy] = st.flow_rms_error_m_s;
+        assert!(fx <= 0.05 && fy <= 0.05, "{what}: flow velocity rms error {fx}, {fy} m/s");
+        assert!(st.flow.velocities as f64 >= 0.8 * st.flow.pairs as f64, "{what}: {:?}", st.flow);
+    }
     assert_eq!(st.passes_done, 2 * s.trajectory.sweeps as u16, "{what}: sweeps not completed");
     assert!(st.rms_error_m[0] <= 0.05, "{what}: x rms {}", st.rms_error_m[0]);
     assert!(st.rms_error_m[1] <= 0.03, "{what}: y rms {}", st.rms_error_m[1]);
@@ -76,6 +89,29 @@ fn paper_scenario_seeds_2_to_10_rendered_one_sweep() {
         let st = fly(&s, seed, CameraMode::Rendered);
         check(&st, &s, &format!("rendered, seed {seed}, one sweep"));
     }
+}
+
+#[test]
+fn without_the_flow_camera_it_still_flies_and_says_so() {
+    let mut s = Scenario::paper();
+    s.down_camera.enabled = false;
+    s.trajectory.sweeps = 1;
+    let out = std::env::temp_dir().join(format!("closed-loop-noflow-{}", std::process::id()));
+    let opts = sim_host::fly::FlyOptions {
+        scenario: s.clone(),
+        seed: 1,
+        duration_s: None,
+        camera: CameraMode::Rendered,
+        out: out.clone(),
+        plots: false,
+    };
+    let r = sim_host::fly::fly(&opts, |_, _| {}).unwrap();
+    assert!(!r.stats.flow_camera && r.stats.flow.pairs == 0);
+    check(&r.stats, &s, "rendered, seed 1, one sweep, no flow camera");
+    assert_eq!(r.summary["flow"]["camera"], "off");
+    assert!(r.summary["flow"]["degraded"].as_str().unwrap().contains("no downward camera"));
+    assert!(r.summary["flow_velocity_rms_error_m_s"].is_null());
+    assert!(!out.join("flow.csv").exists());
 }
 
 #[test]

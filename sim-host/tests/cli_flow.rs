@@ -1,0 +1,151 @@
+//! The `render --camera down` and `vision flow` commands, run as a user would: exit codes, JSON, errors.
+use serde_json::Value;
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn tmp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("sim-host-cli-flow-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sim-host")).args(args).output().unwrap()
+}
+
+fn json(out: &Output) -> Value {
+    serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("stdout is not JSON ({e}): {}", String::from_utf8_lossy(&out.stdout)))
+}
+
+fn render_down(pose: &str, name: &str, extra: &[&str]) -> PathBuf {
+    let p = tmp(name);
+    let mut args = vec!["render", "--camera", "down", "--pose", pose, "--out", p.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    let out = run(&args);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    p
+}
+
+#[test]
+fn translation_gives_the_body_velocity() {
+    // 5 mm along world x (the body's left at zero yaw) in 1/60 s: 0.3 m/s.
+    let a = render_down("1.0,1.3,0.8,0,0,0", "t0.png", &["--seed", "1"]);
+    let b = render_down("1.005,1.3,0.8,0,0,0", "t1.png", &["--seed", "2", "--velocity", "0.3,0,0"]);
+    let out = run(&[
+        "vision",
+        "flow",
+        "--prev",
+        a.to_str().unwrap(),
+        "--next",
+        b.to_str().unwrap(),
+        "--dt",
+        "0.0166667",
+        "--range",
+        "0.8",
+    ]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = json(&out);
+    assert_eq!(j["status"], "ok");
+    let f = j["flow_px"].as_array().unwrap();
+    // 5 mm at 0.8 m with a 138.6 px focal length: 0.87 px along the image's x.
+    assert!((f[0].as_f64().unwrap() - 0.866).abs() < 0.03 && f[1].as_f64().unwrap().abs() < 0.03, "{j}");
+    assert!(j["tracked"].as_u64().unwrap() >= 30 && j["quality"].as_f64().unwrap() > 0.8, "{j}");
+    let v = j["velocity_m_s"].as_array().unwrap();
+    assert!(v[0].as_f64().unwrap().abs() < 0.01 && (v[1].as_f64().unwrap() - 0.3).abs() < 0.01, "{j}");
+    // Without dt and range, no velocity.
+    let out = run(&["vision", "flow", "--prev", a.to_str().unwrap(), "--next", b.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0));
+    assert!(json(&out).get("velocity_m_s").is_none());
+}
+
+#[test]
+fn the_gyro_removes_a_rotation() {
+    // Half a degree of roll between the frames at 30 deg/s: 1.35 px of flow, no velocity once derotated.
+    let a = render_down("1.0,1.3,0.8,0,0,0", "r0.png", &["--seed", "3"]);
+    let b = render_down("1.0,1.3,0.8,0.5,0,0", "r1.png", &["--seed", "4", "--rates", "30,0,0"]);
+    let args =
+        ["vision", "flow", "--prev", a.to_str().unwrap(), "--next", b.to_str().unwrap(), "--dt", "0.0166667"];
+    let with = |extra: &[&str]| {
+        let mut v = args.to_vec();
+        v.extend_from_slice(extra);
+        let out = run(&v);
+        assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+        let j = json(&out);
+        let v = j["velocity_m_s"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect::<Vec<_>>();
+        (v[0].hypot(v[1]), j)
+    };
+    let (derotated, j) = with(&["--gyro", "0.5236,0,0", "--range", "0.8"]);
+    assert!(derotated < 0.02, "{j}");
+    let (raw, j) = with(&["--range", "0.8"]);
+    assert!(raw > 0.3, "without the gyro the rotation reads as motion: {j}");
+}
+
+#[test]
+fn a_blank_floor_is_no_flow_exit_2() {
+    let scenario = tmp("blank.toml");
+    let text = include_str!("../scenarios/paper.toml")
+        .replace("floor_texture_contrast = 0.5", "floor_texture_contrast = 0.0");
+    std::fs::write(&scenario, text).unwrap();
+    let s = scenario.to_str().unwrap();
+    let a = render_down("1.0,1.3,0.8,0,0,0", "b0.png", &["--scenario", s, "--seed", "5"]);
+    let b = render_down("1.005,1.3,0.8,0,0,0", "b1.png", &["--scenario", s, "--seed", "6"]);
+    let out = run(&[
+        "vision",
+        "flow",
+        "--prev",
+        a.to_str().unwrap(),
+        "--next",
+        b.to_str().unwrap(),
+        "--dt",
+        "0.0167",
+        "--range",
+        "0.8",
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = json(&out);
+    assert_eq!(j["status"], "no_flow");
+    assert_eq!(j["reason"], "no_texture");
+    assert_eq!(j["quality"], 0.0);
+    assert!(j.get("velocity_m_s").is_none());
+}
+
+#[test]
+fn bad_input_is_a_message_and_exit_1() {
+    let a = render_down("1.0,1.3,0.8,0,0,0", "e0.png", &[]);
+    let a = a.to_str().unwrap();
+    let junk = tmp("junk.png");
+    std::fs::write(&junk, b"not a png").unwrap();
+    let forward = tmp("forward.png");
+    let out = run(&["render", "--pose", "1,1.3,0.8,0,0,0", "--out", forward.to_str().unwrap()]);
+    assert!(out.status.success());
+    for (args, needle) in [
+        (vec!["vision", "flow", "--prev", junk.to_str().unwrap(), "--next", a], "junk.png"),
+        (vec!["vision", "flow", "--prev", a, "--next", "/no/such/file.png"], "file.png"),
+        (vec!["vision", "flow", "--prev", forward.to_str().unwrap(), "--next", a], "160x120"),
+        (vec!["vision", "flow", "--prev", a, "--next", a, "--dt", "-1"], "--dt"),
+        (vec!["vision", "flow", "--prev", a, "--next", a, "--gyro", "1,2,3"], "--gyro needs --dt"),
+        (vec!["vision", "flow", "--prev", a, "--next", a, "--dt", "0.02", "--gyro", "1,2"], "--gyro"),
+        (vec!["vision", "flow", "--prev", a, "--next", a, "--range", "0"], "--range"),
+        (vec!["render", "--camera", "down", "--pose", "1,1.3,-0.1,0,0,0", "--out", "/tmp/x.png"], "z > 0"),
+        (
+            vec![
+                "render",
+                "--camera",
+                "forward",
+                "--pose",
+                "1,1.3,0.8,0,0,0",
+                "--rates",
+                "1,2,3",
+                "--out",
+                "/tmp/x.png",
+            ],
+            "--camera down",
+        ),
+    ] {
+        let out = run(&args);
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(needle), "{args:?}: {err}");
+    }
+}
