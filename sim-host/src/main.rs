@@ -237,7 +237,7 @@ fn render_down(a: &RenderArgs, scenario: &Scenario, pose: [f64; 6]) -> Result<Ex
         }
         settings.exposure_time_s = e;
     }
-    if !(z > 0.0) {
+    if z.is_nan() || z <= 0.0 {
         bail!("--pose: the downward camera needs the vehicle above the floor (z > 0)");
     }
     let att = Attitude::new(deg(roll as f32), deg(pitch as f32), deg(yaw as f32));
@@ -410,7 +410,7 @@ fn vision_flow(a: &FlowArgs) -> Result<ExitCode> {
         Ok(stats) => {
             let velocity = match (a.dt, a.range) {
                 (Some(dt), Some(range)) => {
-                    let track_sigma = (0.05 / cam.fx) as f32;
+                    let track_sigma = 0.05 / cam.fx;
                     let v = stats
                         .velocity(rot_cam, dt as f32, range as f32, Vec3::Z, 0.0, track_sigma)
                         .context("degenerate geometry for the velocity")?;

@@ -814,6 +814,9 @@ mod tests {
         let c = s.forward_camera_model();
         assert_eq!((c.width, c.height, c.fx, c.fy, c.cx, c.cy), (640, 480, 320.0, 320.0, 320.0, 240.0));
         assert_eq!(s.forward_camera_mount(), CameraMount::FORWARD_AT_CENTRE);
+        // The file's downward camera is the built-in default.
+        assert_eq!(s.down_camera, DownCameraConfig::default());
+        assert_eq!(s.down_camera_mount(), CameraMount::DOWN_AT_CENTRE);
     }
 
     #[test]
@@ -828,6 +831,12 @@ mod tests {
         let bad = text.replace("fx_px = 320.0", "fx_px = -1.0");
         let e = format!("{:#}", Scenario::from_toml(&bad).unwrap_err());
         assert!(e.contains("forward_camera.fx_px"), "{e}");
+        let bad = text.replace("rate_hz = 60.0", "rate_hz = 5.0");
+        let e = format!("{:#}", Scenario::from_toml(&bad).unwrap_err());
+        assert!(e.contains("down_camera.rate_hz"), "{e}");
+        let bad = text.replace("floor_texture = \"speckled\"", "floor_texture = \"carpet\"");
+        let e = format!("{:#}", Scenario::from_toml(&bad).unwrap_err());
+        assert!(e.contains("carpet"), "{e}");
         assert!(Scenario::load("no-such-scenario").is_err());
     }
 }

@@ -945,7 +945,7 @@ mod tests {
 
     #[test]
     fn shifts_beyond_reach_are_rejected() {
-        // 3 levels, window 9: reach about (4 + 1) * 8 = 40 px. A 60 px jump of a periodic-ish texture must
+        // 2 levels, window 9: reach about (4 + 1) * 4 = 20 px from the guess. A 60 px jump of a periodic-ish texture must
         // not come back as a small wrapped flow.
         let a = texture(0.0, 0.0, 1.0);
         let b = texture(-60.0, 0.0, 1.0);
