@@ -6,8 +6,8 @@
 //! 2017). The IMU drives the prediction; corrections come from:
 //!
 //! - **vision fixes** (position and yaw of the forward camera's pose), which are *delayed*: each carries its
-//!   capture time; the innovation is formed against the state stored at that time (a 0.5 s history at the
-//!   control rate), and the measurement row maps the current error back with `dp(t_c) = dp - (t - t_c) dv`;
+//!   capture time; the innovation is formed against the state stored at that time (a 0.256 s history, one
+//!   state per 2 ms), and the measurement row maps the current error back with `dp(t_c) = dp - (t - t_c) dv`;
 //! - **body velocity** (optical flow, from the downward camera);
 //! - **magnetometer heading**;
 //! - **on the ground**: zero velocity, the pad's height and the gravity direction (alignment).
@@ -19,8 +19,10 @@ use geometry::frames::{Attitude, WORLD_FROM_NAV};
 use geometry::{Mat3, Quat, Vec3, wrap_pi};
 
 /// Length of the state history kept for delayed measurements (s).
-pub const HISTORY_S: f32 = 0.5;
-const HISTORY_LEN: usize = 256;
+pub const HISTORY_S: f32 = HISTORY_LEN as f32 * SNAPSHOT_EVERY_US as f32 * 1e-6;
+const HISTORY_LEN: usize = 128;
+/// The history keeps one state per 2 ms at most, whatever the control rate.
+const SNAPSHOT_EVERY_US: u64 = 2000;
 const N: usize = 15;
 const IP: usize = 0;
 const IV: usize = 3;
@@ -389,6 +391,13 @@ impl Estimator {
     }
 
     fn push_history(&mut self, now_us: u64) {
+        if self.hist_len > 0 {
+            let newest = self.history[(self.hist_head + HISTORY_LEN - 1) % HISTORY_LEN].time_us;
+            // Within 1 % of the spacing counts as due (control steps are not exactly periodic).
+            if now_us < newest + SNAPSHOT_EVERY_US - SNAPSHOT_EVERY_US / 100 {
+                return;
+            }
+        }
         let snap = Snapshot { time_us: now_us, p: self.p, v: self.v, q: self.q, corr: self.corr };
         self.history[self.hist_head] = snap;
         self.hist_head = (self.hist_head + 1) % HISTORY_LEN;

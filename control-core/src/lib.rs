@@ -256,8 +256,14 @@ impl ControlCore {
     /// Flight code with validated parameters (see [`FlightParams::validate`]).
     pub fn new(params: FlightParams) -> Result<Self, params::ParamError> {
         params.validate()?;
+        Ok(Self::new_checked(params))
+    }
+
+    /// A controller for parameters that have passed [`FlightParams::validate`] (for callers that check first
+    /// and then build in place; with unchecked parameters the laws' bounds may not hold).
+    pub fn new_checked(params: FlightParams) -> Self {
         let home = Vec3::from_array(params.home_m);
-        Ok(Self {
+        Self {
             params,
             estimator: Estimator::new(params.estimator, home),
             controller: Controller::new(params.gains, params.vehicle),
@@ -279,7 +285,7 @@ impl ControlCore {
             settled_since_us: None,
             motors: [0.0; 4],
             fault_latched: false,
-        })
+        }
     }
 
     /// The parameters.

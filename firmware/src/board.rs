@@ -318,6 +318,50 @@ mod variant {
 
     pub struct Hardware;
 
+    /// The pattern painted over the free stack.
+    const PAINT: u32 = 0xA5A5_A5A5;
+    /// End of RAM: the stack's top.
+    const RAM_END: usize = 0x2002_0000;
+
+    #[allow(unsafe_code)]
+    unsafe extern "C" {
+        /// End of the static data (cortex-m-rt's linker script): the stack may grow down to here.
+        static __sheap: u32;
+    }
+
+    fn stack_floor() -> usize {
+        (core::ptr::addr_of!(__sheap) as usize + 3) & !3
+    }
+
+    /// Paints the free stack below the caller (leaving 512 bytes for this function and interrupts), so that
+    /// [`stack_used`] can find the deepest point the stack reached.
+    pub fn paint_stack() {
+        let sp = cortex_m::register::msp::read() as usize;
+        let mut a = stack_floor();
+        while a + 512 < sp {
+            #[allow(unsafe_code)]
+            // SAFETY: `a` lies between the end of the static data and 512 bytes below the current stack
+            // pointer: memory no one uses yet.
+            unsafe {
+                core::ptr::write_volatile(a as *mut u32, PAINT)
+            };
+            a += 4;
+        }
+    }
+
+    /// Bytes of stack used so far at most (from the top of RAM to the deepest overwritten paint), and the
+    /// bytes between the static data and the top of RAM.
+    pub fn stack_used() -> (usize, usize) {
+        let floor = stack_floor();
+        let mut a = floor;
+        #[allow(unsafe_code)]
+        // SAFETY: reads of plain RAM between the static data and the top of RAM.
+        while a < RAM_END && unsafe { core::ptr::read_volatile(a as *const u32) } == PAINT {
+            a += 4;
+        }
+        (RAM_END - a, RAM_END - floor)
+    }
+
     impl Board {
         /// Reset clock (HSI), UART, tick; no sensors.
         pub fn init() -> Self {
@@ -359,6 +403,8 @@ mod variant {
         pub fn after_step(&mut self, steps: u32, s: &RunStats) {
             if steps >= QEMU_STEPS {
                 let _ = self.hw;
+                let (used, room) = stack_used();
+                cortex_m_semihosting::hprintln!("stack: used={} of {} bytes, free={}", used, room, room - used);
                 cortex_m_semihosting::hprintln!(
                     "loop ran: steps={} ticks={} imu_errors={} motor_errors={} step_cycles_max={} step_cycles_mean={} mode={:?} link_ok={} link_errors={}",
                     s.steps,
@@ -377,4 +423,6 @@ mod variant {
     }
 }
 
+#[cfg(feature = "qemu")]
+pub use variant::paint_stack;
 use variant::Hardware;

@@ -38,13 +38,14 @@ const TELEMETRY_EVERY: u32 = 20;
 
 #[entry]
 fn main() -> ! {
+    #[cfg(feature = "qemu")]
+    board::paint_stack();
     let mut board = board::Board::init();
     let cfg = FlightConfig::paper();
-    let stack: &'static mut FlightStack = match FlightStack::new(cfg) {
-        Ok(s) => match cortex_m::singleton!(: FlightStack = s) {
-            Some(s) => s,
-            None => board::halt("flight stack already taken"),
-        },
+    // The flight stack lives on main's stack frame (main never returns): built in place, not copied into a
+    // static.
+    let mut stack = match FlightStack::new(cfg) {
+        Ok(s) => s,
         Err(e) => {
             defmt::error!("invalid flight parameters: {} ({})", e.field, e.problem);
             board::halt("invalid flight parameters")

@@ -1,4 +1,4 @@
-//! The panic handler: stop the motors, say why, stop.
+//! The panic and hard-fault handlers: stop the motors, say why, stop.
 //!
 //! The control code is written not to panic (no unwrap or indexing on the flight path, math saturates); this is
 //! the last line of defence. It masks interrupts, sends a stop command to every speed controller by driving I2C1
@@ -15,6 +15,25 @@ fn panic(info: &PanicInfo) -> ! {
     #[cfg(feature = "qemu")]
     {
         cortex_m_semihosting::hprintln!("panic: {}", info);
+        cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
+    }
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
+/// A hard fault (a stack overflow into the static data, a bad memory access): the same as a panic. Without it
+/// cortex-m-rt's default handler spins with the motors at their last command.
+#[cortex_m_rt::exception]
+#[allow(unsafe_code)]
+unsafe fn HardFault(ef: &cortex_m_rt::ExceptionFrame) -> ! {
+    cortex_m::interrupt::disable();
+    #[cfg(not(feature = "qemu"))]
+    stop_motors();
+    defmt::error!("hard fault at pc {=u32:#x}, lr {=u32:#x}", ef.pc(), ef.lr());
+    #[cfg(feature = "qemu")]
+    {
+        cortex_m_semihosting::hprintln!("hard fault at pc {:#x}, lr {:#x}", ef.pc(), ef.lr());
         cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_FAILURE);
     }
     loop {

@@ -151,7 +151,25 @@ pub struct FlightStack {
 
 impl FlightStack {
     /// A stack with validated parameters.
+    ///
+    /// Everything is checked before anything is built, and the value is built in one expression, so that the
+    /// compiler can construct it in place (the firmware keeps it on the main stack: each extra copy of its
+    /// tens of kilobytes would cost as much RAM).
     pub fn new(cfg: FlightConfig) -> Result<Self, ParamError> {
+        Self::check(&cfg)?;
+        cfg.control.validate()?;
+        Ok(Self {
+            control: ControlCore::new_checked(cfg.control),
+            vision: cfg.vision,
+            counters: VisionCounters::default(),
+            flow_cfg: cfg.flow,
+            flow_counters: FlowCounters::default(),
+            gyro: GyroHistory::new(),
+        })
+    }
+
+    /// The checks of the vision and flow parts of a configuration.
+    fn check(cfg: &FlightConfig) -> Result<(), ParamError> {
         if !cfg.vision.target.is_valid() {
             return Err(ParamError { field: "vision.target", problem: "line dimensions must be positive" });
         }
@@ -168,14 +186,7 @@ impl FlightStack {
                 problem: "min_height_m and scale_sigma must be >= 0, track_sigma and std_floor_m_s positive",
             });
         }
-        Ok(Self {
-            control: ControlCore::new(cfg.control)?,
-            vision: cfg.vision,
-            counters: VisionCounters::default(),
-            flow_cfg: cfg.flow,
-            flow_counters: FlowCounters::default(),
-            gyro: GyroHistory::new(),
-        })
+        Ok(())
     }
 
     /// The control core (read-only).

@@ -595,9 +595,9 @@ impl Scenario {
             "must lie in [10, 400] Hz",
         )?;
         check(
-            d.latency_s.is_finite() && (0.0..=0.15).contains(&d.latency_s),
+            d.latency_s.is_finite() && d.latency_s >= 0.0 && d.latency_s + 1.0 / d.rate_hz <= 0.12,
             "down_camera.latency_s",
-            "must lie in [0, 0.15] s (the flight code keeps 0.25 s of gyro history)",
+            "plus the frame interval must be at most 0.12 s (the flight code keeps 0.128 s of gyro history)",
         )?;
         check(
             d.exposure_time_s.is_finite() && d.exposure_time_s >= 0.0 && d.exposure_time_s <= 1.0 / d.rate_hz,
