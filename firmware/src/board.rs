@@ -404,7 +404,12 @@ mod variant {
             if steps >= QEMU_STEPS {
                 let _ = self.hw;
                 let (used, room) = stack_used();
-                cortex_m_semihosting::hprintln!("stack: used={} of {} bytes, free={}", used, room, room - used);
+                cortex_m_semihosting::hprintln!(
+                    "stack: used={} of {} bytes, free={}",
+                    used,
+                    room,
+                    room - used
+                );
                 cortex_m_semihosting::hprintln!(
                     "loop ran: steps={} ticks={} imu_errors={} motor_errors={} step_cycles_max={} step_cycles_mean={} mode={:?} link_ok={} link_errors={}",
                     s.steps,
@@ -423,6 +428,6 @@ mod variant {
     }
 }
 
+use variant::Hardware;
 #[cfg(feature = "qemu")]
 pub use variant::paint_stack;
-use variant::Hardware;
