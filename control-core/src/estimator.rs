@@ -413,10 +413,10 @@ impl Estimator {
         if t_us > self.history[newest].time_us {
             return None;
         }
-        let mut later: Option<Snapshot> = None;
+        let mut later: Option<&Snapshot> = None;
         for k in 0..self.hist_len {
             let idx = (newest + HISTORY_LEN - k) % HISTORY_LEN;
-            let s = self.history[idx];
+            let s = &self.history[idx];
             if s.time_us <= t_us {
                 let s = s.corrected(&self.corr);
                 return Some(match later {
@@ -453,18 +453,30 @@ impl Estimator {
     }
 
     /// Scalar measurement update with row `h`; returns whether it was accepted.
+    ///
+    /// The rows are sparse (one to six non-zero entries), so `P h` runs over those only, and the covariance
+    /// update `P - P h h^T P / s` is computed on the upper triangle and mirrored: it stays exactly symmetric.
     fn update(&mut self, h: &[f32; N], innovation: f32, var: f32, gate: bool) -> bool {
+        let mut nz = [0usize; N];
+        let mut n_nz = 0;
+        for (k, hv) in h.iter().enumerate() {
+            if *hv != 0.0 {
+                nz[n_nz] = k;
+                n_nz += 1;
+            }
+        }
+        let nz = &nz[..n_nz];
         let mut ph = [0.0f32; N];
         for (i, row) in self.cov.iter().enumerate() {
             let mut s = 0.0;
-            for (c, hv) in row.iter().zip(h.iter()) {
-                s += c * hv;
+            for &k in nz {
+                s += row[k] * h[k];
             }
             ph[i] = s;
         }
         let mut s = var;
-        for i in 0..N {
-            s += h[i] * ph[i];
+        for &k in nz {
+            s += h[k] * ph[k];
         }
         if !(s > 0.0) || !innovation.is_finite() {
             return false;
@@ -473,16 +485,23 @@ impl Estimator {
         if gate && innovation * innovation > g * g * s {
             return false;
         }
+        let inv_s = 1.0 / s;
+        let mut gain = [0.0f32; N];
         let mut dx = [0.0f32; N];
         for i in 0..N {
-            dx[i] = ph[i] / s * innovation;
+            gain[i] = ph[i] * inv_s;
+            dx[i] = gain[i] * innovation;
         }
         for i in 0..N {
-            for j in 0..N {
-                self.cov[i][j] -= ph[i] * ph[j] / s;
+            for j in i..N {
+                let v = self.cov[i][j] - gain[i] * ph[j];
+                self.cov[i][j] = v;
+                self.cov[j][i] = v;
+            }
+            if !(self.cov[i][i] > 1e-12) {
+                self.cov[i][i] = 1e-12;
             }
         }
-        self.symmetrise();
         self.inject(&dx);
         true
     }

@@ -122,7 +122,7 @@ impl Controller {
         let e_n = WORLD_FROM_NAV.tmul_vec(e_w);
         let de_n = WORLD_FROM_NAV.tmul_vec(de_w);
         let a_n = WORLD_FROM_NAV.tmul_vec(sp.accel_m_s2);
-        let (sy, cy) = (libm::sinf(yaw), libm::cosf(yaw));
+        let (sy, cy) = geometry::trig::sin_cos(yaw);
         let head = |x: Vec3| Vec3::new(cy * x.x + sy * x.y, -sy * x.x + cy * x.y, x.z);
         let (e_h, de_h, a_h) = (head(e_n), head(de_n), head(a_n));
 
@@ -172,7 +172,7 @@ impl Controller {
                 a.integral_limit_m_s2,
             );
         }
-        let cos_tilt = (libm::cosf(roll) * libm::cosf(pitch)).max(a.min_cos_tilt);
+        let cos_tilt = (geometry::trig::cos(roll) * geometry::trig::cos(pitch)).max(a.min_cos_tilt);
         let acc_z = GRAVITY + sp.accel_m_s2.z - a.a_z1 * dez - a.a_z2 * ez - self.altitude_integral;
         let t_max = a.max_thrust_to_weight * v.mass_kg * GRAVITY;
         let thrust = clamp_finite(v.mass_kg * acc_z / cos_tilt, 0.0, t_max);

@@ -349,7 +349,7 @@ impl ControlCore {
             }
             (Command::Arm, Disarmed) => {
                 let tilt = libm::acosf(geometry::clamp_finite(
-                    libm::cosf(est.attitude.roll) * libm::cosf(est.attitude.pitch),
+                    geometry::trig::cos(est.attitude.roll) * geometry::trig::cos(est.attitude.pitch),
                     -1.0,
                     1.0,
                 ));
@@ -466,7 +466,7 @@ impl ControlCore {
 
         // Faults: motors off.
         let tilt = libm::acosf(geometry::clamp_finite(
-            libm::cosf(est.attitude.roll) * libm::cosf(est.attitude.pitch),
+            geometry::trig::cos(est.attitude.roll) * geometry::trig::cos(est.attitude.pitch),
             -1.0,
             1.0,
         ));

@@ -90,6 +90,10 @@ pub struct RunStats {
     pub max_cost: u32,
     /// Sum of step costs (cycles).
     pub sum_cost: u64,
+    /// Largest cost of the background work after one step (pose solves; cycles).
+    pub max_background: u32,
+    /// Sum of background costs (cycles).
+    pub sum_background: u64,
     /// IMU reads that failed.
     pub imu_errors: u32,
     /// Motor command writes that failed.
@@ -108,6 +112,12 @@ impl RunStats {
         self.steps += 1;
         self.max_cost = self.max_cost.max(cost);
         self.sum_cost += cost as u64;
+    }
+
+    /// Adds the cost of the background work after a step.
+    pub fn record_background(&mut self, cost: u32) {
+        self.max_background = self.max_background.max(cost);
+        self.sum_background += cost as u64;
     }
 }
 
@@ -128,25 +138,52 @@ pub fn halt(why: &'static str) -> ! {
 pub struct Board {
     last_tick: u32,
     dwt: bool,
+    /// SysTick runs free without interrupts (firmware in the loop).
+    free_running: bool,
     hw: Hardware,
 }
 
 impl Board {
     /// Waits for the next 1 ms tick and returns its number (ticks are never skipped: a late loop catches up).
+    ///
+    /// The check and the `wfi` are one critical section (see [`Board::rx_byte_or_sleep`]): a tick that fires
+    /// between them would otherwise be noticed only at the next one, 1 ms late.
     pub fn wait_tick(&mut self) -> u32 {
         loop {
-            let now = TICKS.load(Ordering::Acquire);
-            if now != self.last_tick {
+            let due = cortex_m::interrupt::free(|_| {
+                let due = TICKS.load(Ordering::Acquire) != self.last_tick;
+                if !due {
+                    cortex_m::asm::wfi();
+                }
+                due
+            });
+            if due {
                 self.last_tick = self.last_tick.wrapping_add(1);
                 return self.last_tick;
             }
-            cortex_m::asm::wfi();
         }
     }
 
     /// One byte from the radio, if any arrived.
     pub fn rx_byte(&mut self) -> Option<u8> {
         cortex_m::interrupt::free(|cs| RX_QUEUE.borrow(cs).borrow_mut().pop_front())
+    }
+
+    /// One byte from the radio; when none has arrived, sleeps until an interrupt and returns `None`.
+    ///
+    /// The check and the `wfi` are one critical section: a byte whose interrupt comes between them leaves the
+    /// interrupt pending, which ends the `wfi` (it wakes on pending interrupts even while they are masked).
+    /// Checking outside and then sleeping would miss it and, with nothing else to wake the core (the loop of
+    /// the firmware in the loop has no tick), wait forever for a byte already queued.
+    #[cfg(feature = "fil")]
+    pub fn rx_byte_or_sleep(&mut self) -> Option<u8> {
+        cortex_m::interrupt::free(|cs| {
+            let b = RX_QUEUE.borrow(cs).borrow_mut().pop_front();
+            if b.is_none() {
+                cortex_m::asm::wfi();
+            }
+            b
+        })
     }
 
     /// Free space in the radio's transmit queue (bytes).
@@ -158,6 +195,7 @@ impl Board {
     }
 
     /// Queues bytes for the radio; returns how many fitted.
+    #[cfg(not(feature = "qemu"))]
     pub fn tx_bytes(&mut self, bytes: &[u8]) -> usize {
         cortex_m::interrupt::free(|cs| {
             let mut q = TX_QUEUE.borrow(cs).borrow_mut();
@@ -175,9 +213,36 @@ impl Board {
         })
     }
 
+    /// Writes bytes to the radio UART, waiting on each (QEMU does not raise the transmit interrupt; its UART
+    /// takes each byte at once).
+    #[cfg(feature = "qemu")]
+    pub fn tx_bytes(&mut self, bytes: &[u8]) -> usize {
+        cortex_m::interrupt::free(|cs| {
+            let mut uart = UART.borrow(cs).borrow_mut();
+            let Some((tx, _)) = uart.as_mut() else { return 0 };
+            for &b in bytes {
+                if embedded_hal_nb::nb::block!(embedded_hal_nb::serial::Write::write(tx, b)).is_err() {
+                    return 0;
+                }
+            }
+            bytes.len()
+        })
+    }
+
+    /// Cycles since `t0` (a value of [`Board::cycles`]); with the free-running 24-bit SysTick of the
+    /// firmware-in-the-loop variant, for spans under 0.1 s.
+    pub fn cycles_since(&self, t0: u32) -> u32 {
+        let now = self.cycles();
+        if self.free_running { now.wrapping_sub(t0) & 0x00FF_FFFF } else { now.wrapping_sub(t0) }
+    }
+
     /// A free-running cycle count for measuring the step's cost: the DWT cycle counter on the board; under QEMU
     /// (whose DWT reads 0) the SysTick count, which counts the emulated CPU clock.
     pub fn cycles(&self) -> u32 {
+        if self.free_running {
+            // Counts down from 2^24 - 1 without interrupts: the elapsed count, modulo 2^24.
+            return 0x00FF_FFFF - cortex_m::peripheral::SYST::get_current();
+        }
         if self.dwt {
             cortex_m::peripheral::DWT::cycle_count()
         } else {
@@ -271,7 +336,12 @@ mod variant {
             cp.DCB.enable_trace();
             cp.DWT.enable_cycle_counter();
             start_tick(cp.SYST, rcc.clocks.sysclk().raw());
-            Board { last_tick: TICKS.load(Ordering::Acquire), dwt: true, hw: Hardware { imu, mag, esc } }
+            Board {
+                last_tick: TICKS.load(Ordering::Acquire),
+                dwt: true,
+                free_running: false,
+                hw: Hardware { imu, mag, esc },
+            }
         }
 
         /// One IMU sample stamped `time_us`.
@@ -379,9 +449,27 @@ mod variant {
                 halt("uart")
             };
             start_uart(serial);
-            start_tick(cp.SYST, QEMU_CORE_HZ);
-            cortex_m_semihosting::hprintln!("firmware (qemu variant) started");
-            Board { last_tick: TICKS.load(Ordering::Acquire), dwt: false, hw: Hardware }
+            #[cfg(not(feature = "fil"))]
+            {
+                start_tick(cp.SYST, QEMU_CORE_HZ);
+                cortex_m_semihosting::hprintln!("firmware (qemu variant) started");
+            }
+            #[cfg(feature = "fil")]
+            {
+                // Free-running, no interrupt: measures steps without anything else running during them.
+                let mut syst = cp.SYST;
+                syst.set_clock_source(SystClkSource::Core);
+                syst.set_reload(0x00FF_FFFF);
+                syst.clear_current();
+                syst.enable_counter();
+                cortex_m_semihosting::hprintln!("firmware (firmware-in-the-loop variant) started");
+            }
+            Board {
+                last_tick: TICKS.load(Ordering::Acquire),
+                dwt: false,
+                free_running: cfg!(feature = "fil"),
+                hw: Hardware,
+            }
         }
 
         /// A synthetic IMU at rest: no rotation, gravity along body z.
@@ -402,27 +490,32 @@ mod variant {
         /// After a fixed number of steps: report the counts over semihosting and exit.
         pub fn after_step(&mut self, steps: u32, s: &RunStats) {
             if steps >= QEMU_STEPS {
-                let _ = self.hw;
-                let (used, room) = stack_used();
-                cortex_m_semihosting::hprintln!(
-                    "stack: used={} of {} bytes, free={}",
-                    used,
-                    room,
-                    room - used
-                );
-                cortex_m_semihosting::hprintln!(
-                    "loop ran: steps={} ticks={} imu_errors={} motor_errors={} step_cycles_max={} step_cycles_mean={} mode={:?} link_ok={} link_errors={}",
-                    s.steps,
-                    self.last_tick,
-                    s.imu_errors,
-                    s.motor_errors,
-                    s.max_cost,
-                    s.sum_cost / s.steps.max(1) as u64,
-                    s.mode,
-                    s.link.ok,
-                    s.link.errors()
-                );
-                cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
+                self.report_and_exit(s);
+            }
+        }
+
+        /// Reports the stack's high-water mark and the loop's counts over semihosting and exits.
+        pub fn report_and_exit(&mut self, s: &RunStats) -> ! {
+            let _ = self.hw;
+            let (used, room) = stack_used();
+            cortex_m_semihosting::hprintln!("stack: used={} of {} bytes, free={}", used, room, room - used);
+            cortex_m_semihosting::hprintln!(
+                "loop ran: steps={} ticks={} imu_errors={} motor_errors={} step_cycles_max={} step_cycles_mean={} background_cycles_max={} background_cycles_total={} mode={:?} link_ok={} link_errors={}",
+                s.steps,
+                self.last_tick,
+                s.imu_errors,
+                s.motor_errors,
+                s.max_cost,
+                s.sum_cost / s.steps.max(1) as u64,
+                s.max_background,
+                s.sum_background,
+                s.mode,
+                s.link.ok,
+                s.link.errors()
+            );
+            cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
+            loop {
+                cortex_m::asm::nop();
             }
         }
     }

@@ -1,10 +1,9 @@
 //! The radio link's downlink side: frames a message and queues it for the UART.
 use crate::board::Board;
-use protocol::Downlink;
 use protocol::frame::{MAX_FRAME, encode};
 
 /// Frames `msg` and queues it; a message that does not fit the queue whole is dropped (never half-sent).
-pub fn send(board: &mut Board, msg: &Downlink) {
+pub fn send<T: serde::Serialize>(board: &mut Board, msg: &T) {
     let mut buf = [0u8; MAX_FRAME];
     if let Ok(frame) = encode(msg, &mut buf) {
         let n = frame.len();

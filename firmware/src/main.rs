@@ -9,32 +9,69 @@
 //!   failsafes, control laws, mixer), the rotor speeds go to the BL-Ctrl speed controllers (I2C1), and every
 //!   20th step telemetry goes back down the link with the step's measured cost.
 //!
-//! The `qemu` feature builds the QEMU `netduinoplus2` variant (see `board.rs`). Scheduling choices are in
-//! docs/firmware.md.
+//! The `qemu` feature builds the QEMU `netduinoplus2` variant (see `board.rs`); the `fil` feature its
+//! firmware-in-the-loop form, where the simulator drives the same step over the UART (`fil.rs`). Scheduling
+//! choices are in docs/firmware.md.
 #![no_std]
 #![no_main]
 #![deny(unsafe_code)]
+// With the simulator driving the steps, the board loop's tick and sensor functions go unused.
+#![cfg_attr(feature = "fil", allow(dead_code))]
 
 mod board;
+#[cfg(feature = "fil")]
+mod fil;
 mod link;
 mod panic;
 
 use control_core::CommandResult;
-use control_core::estimator::ImuSample;
 use cortex_m_rt::entry;
 use defmt_rtt as _;
-use drivers::blctrl::command_for_speed;
-use flight_core::{FlightConfig, FlightStack, StepInput};
-use geometry::Vec3;
-use heapless::Vec;
-use protocol::{Downlink, Telemetry, Uplink};
+use flight_core::{FlightConfig, FlightStack};
+use protocol::{Downlink, Telemetry};
 
 /// Control period in ticks (500 Hz).
+#[cfg(not(feature = "fil"))]
 const STEP_EVERY: u32 = 2;
 /// Magnetometer period in ticks (50 Hz).
+#[cfg(not(feature = "fil"))]
 const MAG_EVERY: u32 = 20;
 /// Telemetry period in control steps (25 Hz).
 const TELEMETRY_EVERY: u32 = 20;
+
+/// The step's messages for the ground station: command acknowledgements, parameter replies and, every
+/// `TELEMETRY_EVERY` steps, telemetry with the step's measured cost.
+fn downlinks(
+    out: &flight_core::StepOutput,
+    time_us: u64,
+    steps: u32,
+    step_cost: u32,
+    last_command: &mut Option<CommandResult>,
+    mut send: impl FnMut(Downlink),
+) {
+    let st = out.control.status;
+    if st.last_command != *last_command {
+        *last_command = st.last_command;
+        if let Some(r) = st.last_command {
+            send(Downlink::CommandAck(r));
+        }
+    }
+    if let Some(r) = out.param_reply {
+        send(Downlink::Param(r));
+    }
+    if steps.is_multiple_of(TELEMETRY_EVERY) {
+        send(Downlink::Telemetry(Telemetry {
+            time_us,
+            mode: st.mode,
+            failsafe: st.failsafe,
+            estimate: out.control.estimate,
+            setpoint: out.control.setpoint,
+            motors_rad_s: out.control.motors_rad_s,
+            fix_age_s: st.fix_age_s,
+            step_cost,
+        }));
+    }
+}
 
 #[entry]
 fn main() -> ! {
@@ -51,6 +88,21 @@ fn main() -> ! {
             board::halt("invalid flight parameters")
         }
     };
+    #[cfg(feature = "fil")]
+    fil::run(&mut board, &mut stack);
+    #[cfg(not(feature = "fil"))]
+    run(&mut board, &mut stack, &cfg)
+}
+
+/// The flight loop on the board's own sensors and motors.
+#[cfg(not(feature = "fil"))]
+fn run(board: &mut board::Board, stack: &mut FlightStack, cfg: &FlightConfig) -> ! {
+    use control_core::estimator::ImuSample;
+    use drivers::blctrl::command_for_speed;
+    use flight_core::StepInput;
+    use geometry::Vec3;
+    use heapless::Vec;
+    use protocol::Uplink;
     let motor_max = cfg.control.vehicle.motor_speed_max_rad_s;
     let mut decoder = protocol::frame::Decoder::new();
     let mut imu: Vec<ImuSample, 4> = Vec::new();
@@ -90,7 +142,7 @@ fn main() -> ! {
         }
         let t0 = board.cycles();
         let out = stack.step(&StepInput { time_us, imu: &imu, mag: mag.take(), uplink: &uplink });
-        let step_cost = board.cycles().wrapping_sub(t0);
+        let step_cost = board.cycles_since(t0);
         stats.record_step(step_cost);
         imu.clear();
         let cmd = out.control.motors_rad_s.map(|w| command_for_speed(w, motor_max));
@@ -98,32 +150,16 @@ fn main() -> ! {
             stats.motor_errors += 1;
         }
         steps = steps.wrapping_add(1);
-        // Downlink: command acknowledgements and periodic telemetry.
-        let st = out.control.status;
-        if st.last_command != last_command {
-            last_command = st.last_command;
-            if let Some(r) = st.last_command {
-                link::send(&mut board, &Downlink::CommandAck(r));
-            }
-        }
-        if let Some(r) = out.param_reply {
-            link::send(&mut board, &Downlink::Param(r));
-        }
-        if steps.is_multiple_of(TELEMETRY_EVERY) {
-            let t = Telemetry {
-                time_us,
-                mode: st.mode,
-                failsafe: st.failsafe,
-                estimate: out.control.estimate,
-                setpoint: out.control.setpoint,
-                motors_rad_s: out.control.motors_rad_s,
-                fix_age_s: st.fix_age_s,
-                step_cost,
-            };
-            link::send(&mut board, &Downlink::Telemetry(t));
-        }
-        stats.mode = st.mode;
+        downlinks(&out, time_us, steps, step_cost, &mut last_command, |m| link::send(board, &m));
+        stats.mode = out.control.status.mode;
         stats.link = decoder.counters();
+        // Background work: the pose solves of the frames this step queued, fused by the next step. It runs
+        // in this loop, so a solve delays the next tick's IMU read (see docs/firmware.md, "Timing").
+        if stack.pending_solves() > 0 {
+            let t1 = board.cycles();
+            stack.solve_pending();
+            stats.record_background(board.cycles_since(t1));
+        }
         board.after_step(steps, &stats);
     }
 }

@@ -47,8 +47,8 @@ impl Default for FlowConfig {
             mount: CameraMount::DOWN_AT_CENTRE,
             min_quality: 0.4,
             min_height_m: 0.25,
-            // 0.05 px at a 139 px focal length.
-            track_sigma: 3.6e-4,
+            // 0.05 px at the default camera's 138.6 px focal length.
+            track_sigma: 0.05 / 138.6,
             std_floor_m_s: 0.01,
             // Measured on rendered floors: speeds read up to 2.3 % short (bilinear sub-pixel bias).
             scale_sigma: 0.03,
@@ -57,7 +57,7 @@ impl Default for FlowConfig {
 }
 
 /// What became of a flow measurement.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FlowOutcome {
     /// The ground station found no flow.
@@ -80,7 +80,7 @@ pub enum FlowOutcome {
 }
 
 /// Counters of the flow measurements received.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FlowCounters {
     /// Measurements received.

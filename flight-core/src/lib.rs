@@ -8,6 +8,12 @@
 //! time* (kept in the estimator's history), then fuses the fix. See `docs/architecture.md` for why the solve
 //! runs on board rather than on the ground.
 //!
+//! The pose solve costs ten times a control step, so it is not part of one: [`FlightStack::step`] only
+//! queues the frame with its capture-time attitude ([`SolveJob`]), [`FlightStack::solve_pending`] solves the
+//! queue as background work (after the step, at lower priority), and the next step fuses the fixes. Every
+//! caller runs them in this order (step, then background work), so that the simulator, replay and the
+//! firmware in the loop compute the same bits; on the board the background work runs between control steps.
+//!
 //! Optical-flow measurements of the downward camera arrive as flow statistics of a frame pair
 //! ([`protocol::FlowMeasurement`]); [`flow`] derotates them with the gyro over exactly the frame interval and
 //! scales them by the range into a body velocity for the estimator.
@@ -20,6 +26,7 @@
 // `!(x > 0.0)` deliberately rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod fil;
 pub mod flow;
 
 use control_core::estimator::{BodyVelocity, ImuSample, PositionFix};
@@ -108,7 +115,7 @@ pub enum FrameOutcome {
 }
 
 /// Counters of the vision frames the stack received.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct VisionCounters {
     /// Frames received.
@@ -119,14 +126,29 @@ pub struct VisionCounters {
     pub solved: u32,
     /// Frames the solver rejected or could not place in time.
     pub rejected: u32,
+    /// Frames dropped unsolved because newer ones filled the solve queue (the background work fell behind).
+    pub dropped: u32,
 }
+
+/// A frame waiting for its pose solve: the measurement and the estimator's attitude at its capture time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolveJob {
+    /// The frame's line observation and capture time.
+    pub measurement: VisionMeasurement,
+    /// What the solver takes from the IMU: roll and pitch at the capture time and their uncertainty.
+    pub attitude: AttitudeSource,
+}
+
+/// Frames that may wait for the solver; a newer frame pushes out the oldest.
+pub const SOLVE_QUEUE: usize = 2;
 
 /// What one step returns.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct StepOutput {
     /// Control outputs: rotor speeds, status, estimate, setpoint.
     pub control: ControlOutputs,
-    /// This step's frame, if any (the last one when several arrived).
+    /// The outcome of the frame this step used: solved since the previous step, or without a line or an
+    /// attitude (the last one when several).
     pub frame: Option<FrameOutcome>,
     /// Vision counters since start.
     pub vision: VisionCounters,
@@ -136,6 +158,51 @@ pub struct StepOutput {
     pub flow_counters: FlowCounters,
     /// The answer to this step's parameter request (the last, when several arrived).
     pub param_reply: Option<control_core::ParamReply>,
+    /// What the estimator has used and rejected since start.
+    pub estimator: control_core::estimator::EstimatorCounters,
+}
+
+/// What a step returns, without the pose of this step's frame: what the simulator needs from a flight
+/// computer, and what the firmware in the loop sends back each step (small enough for one link frame).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StepReport {
+    /// Control outputs: rotor speeds, status, estimate, setpoint.
+    pub control: ControlOutputs,
+    /// Vision counters since start.
+    pub vision: VisionCounters,
+    /// This step's flow measurement, if any.
+    pub flow: Option<FlowOutcome>,
+    /// Flow counters since start.
+    pub flow_counters: FlowCounters,
+    /// The answer to this step's parameter request.
+    pub param_reply: Option<control_core::ParamReply>,
+    /// What the estimator has used and rejected since start.
+    pub estimator: control_core::estimator::EstimatorCounters,
+}
+
+impl StepOutput {
+    /// The report of this output.
+    pub fn report(&self) -> StepReport {
+        StepReport {
+            control: self.control,
+            vision: self.vision,
+            flow: self.flow,
+            flow_counters: self.flow_counters,
+            param_reply: self.param_reply,
+            estimator: self.estimator,
+        }
+    }
+}
+
+/// Solves a frame's pose (the background work of [`FlightStack::solve_pending`], a pure function of the job
+/// and the configuration).
+pub fn solve_job(job: &SolveJob, v: &VisionConfig) -> FrameOutcome {
+    let Some(obs) = job.measurement.observation else { return FrameOutcome::NoTarget };
+    match vision_core::solve_pose(&obs, &v.camera, &v.target, &v.mount, job.attitude, &v.pose) {
+        Ok(p) => FrameOutcome::Solved(p),
+        Err(e) => FrameOutcome::Rejected(e),
+    }
 }
 
 /// The flight stack.
@@ -147,6 +214,10 @@ pub struct FlightStack {
     flow_cfg: FlowConfig,
     flow_counters: FlowCounters,
     gyro: GyroHistory,
+    /// Frames waiting for the solver.
+    jobs: heapless::Deque<SolveJob, SOLVE_QUEUE>,
+    /// Solved frames waiting for the next step.
+    solved: heapless::Vec<(u64, FrameOutcome), SOLVE_QUEUE>,
 }
 
 impl FlightStack {
@@ -165,6 +236,8 @@ impl FlightStack {
             flow_cfg: cfg.flow,
             flow_counters: FlowCounters::default(),
             gyro: GyroHistory::new(),
+            jobs: heapless::Deque::new(),
+            solved: heapless::Vec::new(),
         })
     }
 
@@ -194,19 +267,46 @@ impl FlightStack {
         &self.control
     }
 
-    /// Solves a frame's pose with the estimator's attitude at its capture time.
-    fn solve(&self, m: &VisionMeasurement) -> FrameOutcome {
-        let Some(obs) = m.observation else { return FrameOutcome::NoTarget };
-        let Some(att) = self.control.estimator().attitude_at(m.capture_time_us) else {
-            return FrameOutcome::NoAttitude;
-        };
+    /// The solve job of a frame: its capture-time attitude from the estimator's history; `None` without a
+    /// line or an attitude.
+    fn job(&self, m: &VisionMeasurement) -> Option<SolveJob> {
+        m.observation?;
+        let att = self.control.estimator().attitude_at(m.capture_time_us)?;
         let est = self.control.estimator().estimate(m.capture_time_us);
         let sigma = est.tilt_std_rad.max(self.vision.attitude_sigma_floor_rad);
-        let source = AttitudeSource::Imu { roll: att.roll, pitch: att.pitch, sigma_rad: sigma };
-        let v = &self.vision;
-        match vision_core::solve_pose(&obs, &v.camera, &v.target, &v.mount, source, &v.pose) {
-            Ok(p) => FrameOutcome::Solved(p),
-            Err(e) => FrameOutcome::Rejected(e),
+        Some(SolveJob {
+            measurement: *m,
+            attitude: AttitudeSource::Imu { roll: att.roll, pitch: att.pitch, sigma_rad: sigma },
+        })
+    }
+
+    /// Frames waiting for [`FlightStack::solve_pending`].
+    pub fn pending_solves(&self) -> usize {
+        self.jobs.len()
+    }
+
+    /// Background work: solves the queued frames; the next [`FlightStack::step`] fuses them. Returns how many
+    /// were solved.
+    pub fn solve_pending(&mut self) -> usize {
+        let mut n = 0;
+        while let Some(job) = self.jobs.pop_front() {
+            let outcome = solve_job(&job, &self.vision);
+            if self.solved.is_full() {
+                self.solved.remove(0);
+                self.counters.dropped += 1;
+            }
+            // Cannot fail: a place was made above.
+            let _ = self.solved.push((job.measurement.capture_time_us, outcome));
+            n += 1;
+        }
+        n
+    }
+
+    fn count(&mut self, outcome: &FrameOutcome) {
+        match outcome {
+            FrameOutcome::NoTarget => self.counters.no_target += 1,
+            FrameOutcome::NoAttitude | FrameOutcome::Rejected(_) => self.counters.rejected += 1,
+            FrameOutcome::Solved(_) => self.counters.solved += 1,
         }
     }
 
@@ -218,6 +318,23 @@ impl FlightStack {
         let mut param_reply = None;
         let mut flow: Option<BodyVelocity> = None;
         let mut flow_outcome = None;
+        // The frames solved since the previous step (oldest first; the estimator takes one fix per step, the
+        // newest).
+        let solved = core::mem::take(&mut self.solved);
+        for (capture_time_us, outcome) in solved {
+            self.count(&outcome);
+            if let FrameOutcome::Solved(p) = &outcome {
+                fix = Some(PositionFix {
+                    capture_time_us,
+                    position_m: p.vehicle_position_m,
+                    position_std_m: p.position_std_m,
+                    x_observed: p.x_observed,
+                    yaw_rad: p.attitude.yaw,
+                    yaw_std_rad: p.yaw_std_rad,
+                });
+            }
+            frame = Some(outcome);
+        }
         // The gyro history first, so that a flow interval ending at the newest sample is covered.
         let bias = self.control.estimator().estimate(inp.time_us).gyro_bias_rad_s;
         for s in inp.imu {
@@ -231,23 +348,25 @@ impl FlightStack {
                 Uplink::ParamGet(id) => param_reply = Some(self.control.get_param(*id)),
                 Uplink::Vision(m) => {
                     self.counters.frames += 1;
-                    let outcome = self.solve(m);
-                    match outcome {
-                        FrameOutcome::NoTarget => self.counters.no_target += 1,
-                        FrameOutcome::NoAttitude | FrameOutcome::Rejected(_) => self.counters.rejected += 1,
-                        FrameOutcome::Solved(p) => {
-                            self.counters.solved += 1;
-                            fix = Some(PositionFix {
-                                capture_time_us: m.capture_time_us,
-                                position_m: p.vehicle_position_m,
-                                position_std_m: p.position_std_m,
-                                x_observed: p.x_observed,
-                                yaw_rad: p.attitude.yaw,
-                                yaw_std_rad: p.yaw_std_rad,
-                            });
+                    match self.job(m) {
+                        Some(job) => {
+                            if self.jobs.is_full() {
+                                self.jobs.pop_front();
+                                self.counters.dropped += 1;
+                            }
+                            // Cannot fail: a place was made above.
+                            let _ = self.jobs.push_back(job);
+                        }
+                        None => {
+                            let outcome = if m.observation.is_none() {
+                                FrameOutcome::NoTarget
+                            } else {
+                                FrameOutcome::NoAttitude
+                            };
+                            self.count(&outcome);
+                            frame = Some(outcome);
                         }
                     }
-                    frame = Some(outcome);
                 }
                 Uplink::Flow(m) => {
                     let c = &mut self.flow_counters;
@@ -283,6 +402,7 @@ impl FlightStack {
             flow: flow_outcome,
             flow_counters: self.flow_counters,
             param_reply,
+            estimator: self.control.estimator().counters(),
         }
     }
 }
@@ -332,5 +452,64 @@ mod tests {
         let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[Uplink::Vision(m)] });
         assert_eq!(out.frame, Some(FrameOutcome::NoTarget));
         assert_eq!(out.vision.no_target, 1);
+        assert_eq!(s.pending_solves(), 0);
+    }
+
+    /// The line as seen from 1.2 m in front of the wall, level, at the line's height.
+    fn frame_seen(capture_time_us: u64, frame_seq: u32) -> VisionMeasurement {
+        let v = VisionConfig::default();
+        let c = v.target.center() - Vec3::new(0.0, -1.2, 0.0);
+        let r_wc = geometry::frames::Attitude::new(0.0, 0.0, 0.0)
+            .world_from_body()
+            .mul_mat(&v.mount.body_from_camera);
+        let obs = vision_core::observation::project_observation(
+            &v.camera,
+            &v.target,
+            &r_wc.transpose(),
+            c,
+            3.0,
+            2.0,
+            || 0.0,
+        );
+        assert!(obs.is_some(), "the line is in view");
+        VisionMeasurement { capture_time_us, frame_seq, observation: obs }
+    }
+
+    #[test]
+    fn frames_are_solved_as_background_work_and_fused_by_the_next_step() {
+        let mut s = FlightStack::new(FlightConfig::paper()).unwrap();
+        let mut t = 0;
+        for _ in 0..100 {
+            t += 2000;
+            s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[] });
+        }
+        // The step queues the frame; nothing is solved within it.
+        t += 2000;
+        let m = frame_seen(t - 30_000, 1);
+        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[Uplink::Vision(m)] });
+        assert_eq!((out.frame, out.vision.solved, out.vision.frames), (None, 0, 1));
+        assert_eq!(s.pending_solves(), 1);
+        // Background work solves it; the next step fuses it (the first fix initialises x and y).
+        assert_eq!(s.solve_pending(), 1);
+        assert_eq!(s.pending_solves(), 0);
+        let before = s.control().estimator().counters();
+        t += 2000;
+        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[] });
+        let Some(FrameOutcome::Solved(p)) = out.frame else { panic!("solved: {:?}", out.frame) };
+        let want = VisionConfig::default().target.center() - Vec3::new(0.0, -1.2, 0.0);
+        assert!((p.vehicle_position_m - want).norm() < 1e-3, "{:?}", p.vehicle_position_m);
+        assert_eq!(out.vision.solved, 1);
+        assert!((out.control.estimate.position_m.y - want.y).abs() < 0.01, "fused");
+        assert_ne!(s.control().estimator().counters(), before);
+        // Three frames before the background work runs: the oldest is dropped and counted.
+        t += 2000;
+        let ms = [frame_seen(t - 30_000, 2), frame_seen(t - 28_000, 3), frame_seen(t - 26_000, 4)];
+        let uplink = ms.map(Uplink::Vision);
+        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &uplink });
+        assert_eq!((out.vision.frames, out.vision.dropped), (4, 1));
+        assert_eq!(s.solve_pending(), 2);
+        t += 2000;
+        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[] });
+        assert_eq!(out.vision.solved, 3);
     }
 }

@@ -1,7 +1,8 @@
 //! Small, deterministic f32 geometry for the flight crates.
 //!
-//! Every transcendental function goes through [`libm`], so the host (simulation, replay) and the
-//! Cortex-M4F firmware compute the same bits for the same inputs. Nothing here allocates.
+//! Every transcendental function goes through [`libm`] or [`trig`] (sine and cosine in f32 only), so the host
+//! (simulation, replay) and the Cortex-M4F firmware compute the same bits for the same inputs. Nothing here
+//! allocates.
 //!
 //! - [`Vec2`], [`Vec3`]: plain vectors with the usual operators.
 //! - [`Mat3`]: row-major 3x3 matrices, rotations, Euler angles (ZYX), polar re-orthonormalisation.
@@ -19,6 +20,7 @@ pub mod frames;
 mod mat;
 mod quat;
 pub mod solve;
+pub mod trig;
 mod vec;
 
 pub use mat::Mat3;

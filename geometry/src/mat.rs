@@ -144,27 +144,27 @@ impl Mat3 {
 
     /// Rotation about x by `a` radians.
     pub fn rot_x(a: f32) -> Mat3 {
-        let (s, c) = (libm::sinf(a), libm::cosf(a));
+        let (s, c) = crate::trig::sin_cos(a);
         Mat3::from_rows([1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c])
     }
 
     /// Rotation about y by `a` radians.
     pub fn rot_y(a: f32) -> Mat3 {
-        let (s, c) = (libm::sinf(a), libm::cosf(a));
+        let (s, c) = crate::trig::sin_cos(a);
         Mat3::from_rows([c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c])
     }
 
     /// Rotation about z by `a` radians.
     pub fn rot_z(a: f32) -> Mat3 {
-        let (s, c) = (libm::sinf(a), libm::cosf(a));
+        let (s, c) = crate::trig::sin_cos(a);
         Mat3::from_rows([c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0])
     }
 
     /// `Rz(yaw) * Ry(pitch) * Rx(roll)`: the ZYX (yaw-pitch-roll) convention.
     pub fn from_euler_zyx(roll: f32, pitch: f32, yaw: f32) -> Mat3 {
-        let (sr, cr) = (libm::sinf(roll), libm::cosf(roll));
-        let (sp, cp) = (libm::sinf(pitch), libm::cosf(pitch));
-        let (sy, cy) = (libm::sinf(yaw), libm::cosf(yaw));
+        let (sr, cr) = crate::trig::sin_cos(roll);
+        let (sp, cp) = crate::trig::sin_cos(pitch);
+        let (sy, cy) = crate::trig::sin_cos(yaw);
         Mat3::from_rows(
             [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
             [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
@@ -175,8 +175,9 @@ impl Mat3 {
     /// Inverse of [`Mat3::from_euler_zyx`]: `(roll, pitch, yaw)` in radians.
     pub fn to_euler_zyx(&self) -> (f32, f32, f32) {
         let m = &self.m;
+        // asin(-m20) as atan2 of sine and cosine: libm's asinf computes in f64, which the MCU emulates.
         let sp = crate::clamp_finite(-m[2][0], -1.0, 1.0);
-        let pitch = libm::asinf(sp);
+        let pitch = libm::atan2f(sp, libm::sqrtf(m[0][0] * m[0][0] + m[1][0] * m[1][0]));
         let roll = libm::atan2f(m[2][1], m[2][2]);
         let yaw = libm::atan2f(m[1][0], m[0][0]);
         (roll, pitch, yaw)
@@ -191,7 +192,8 @@ impl Mat3 {
             (1.0 - th2 / 6.0, 0.5 - th2 / 24.0)
         } else {
             let th = libm::sqrtf(th2);
-            (libm::sinf(th) / th, (1.0 - libm::cosf(th)) / th2)
+            let (s, c) = crate::trig::sin_cos(th);
+            (s / th, (1.0 - c) / th2)
         };
         Mat3::IDENTITY.add(&k.scale(a)).add(&k2.scale(b))
     }
@@ -220,7 +222,7 @@ impl Mat3 {
             }
             return axis * th;
         }
-        v * (th / (2.0 * libm::sinf(th)))
+        v * (th / (2.0 * crate::trig::sin(th)))
     }
 
     /// Angle (radians) of the rotation `self^T * o`.

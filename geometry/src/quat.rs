@@ -69,8 +69,9 @@ impl Quat {
             return Quat { w: 1.0 - th2 / 8.0, x: w.x * s, y: w.y * s, z: w.z * s };
         }
         let th = libm::sqrtf(th2);
-        let s = libm::sinf(0.5 * th) / th;
-        Quat { w: libm::cosf(0.5 * th), x: w.x * s, y: w.y * s, z: w.z * s }
+        let (sin, cos) = crate::trig::sin_cos(0.5 * th);
+        let s = sin / th;
+        Quat { w: cos, x: w.x * s, y: w.y * s, z: w.z * s }
     }
 
     /// The rotation vector (axis times angle, radians, angle in `[0, pi]`) of this rotation: the inverse of

@@ -95,7 +95,7 @@ pub fn sym2_eigen(a: f32, b: f32, c: f32) -> (f32, f32, [f32; 2]) {
     let l_small = if l_large.abs() > 1e-30 { det / l_large } else { mean - r };
     // Eigenvector of l_large is (cos t, sin t) with tan(2t) = 2b / (a - c); the small one is perpendicular.
     let t = 0.5 * libm::atan2f(b, half_diff);
-    let v_small = [-libm::sinf(t), libm::cosf(t)];
+    let v_small = [-crate::trig::sin(t), crate::trig::cos(t)];
     (l_small, l_large, v_small)
 }
 

@@ -1,8 +1,9 @@
 //! `sim-host fly`: a software-in-the-loop flight and its outputs (summary, trajectory, plots).
+use crate::fil::STEP_BUDGET_INSTRUCTIONS;
 use crate::imageio::write_png_rgb;
 use crate::plot::{Plot, Series, render};
 use crate::scenario::Scenario;
-use crate::sil::{CameraMode, FlowRecord, Record, RunStats, Sil};
+use crate::sil::{CameraMode, FcChoice, FlowRecord, Record, RunStats, Sil};
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
 use std::fmt::Write as _;
@@ -24,6 +25,8 @@ pub struct FlyOptions {
     pub out: PathBuf,
     /// Write the PNG plots.
     pub plots: bool,
+    /// The flight computer.
+    pub fc: FcChoice,
 }
 
 /// The outcome of a flight.
@@ -60,10 +63,13 @@ pub fn tilt_bound_deg(s: &Scenario) -> f64 {
 pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyResult> {
     std::fs::create_dir_all(&opts.out).with_context(|| format!("cannot create {}", opts.out.display()))?;
     let end = opts.duration_s.unwrap_or(opts.scenario.mission.max_duration_s);
-    let mut sil = Sil::new(&opts.scenario, opts.seed, opts.camera)?;
+    let mut sil = Sil::with_fc(&opts.scenario, opts.seed, opts.camera, &opts.fc)?;
     let t0 = Instant::now();
     let stats = sil.run(end, |t| progress(t, end));
     let wall = t0.elapsed().as_secs_f64();
+    if let Some(e) = &stats.fc_error {
+        anyhow::bail!("the flight computer failed after {:.3} s of flight: {e}", stats.sim_time_s);
+    }
     let mut files = Vec::new();
     let csv = opts.out.join("trajectory.csv");
     write_trajectory_csv(&csv, sil.records())?;
@@ -87,10 +93,35 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
 /// The content of `summary.json`.
 pub fn summary_json(opts: &FlyOptions, st: &RunStats, wall: f64, files: &[PathBuf]) -> Value {
     let xyz = |v: [f64; 3]| json!({"x": r6(v[0]), "y": r6(v[1]), "z": r6(v[2])});
+    let fc = match &opts.fc {
+        FcChoice::Sil => json!("sil"),
+        FcChoice::Qemu(q) => json!({"qemu": q.elf.display().to_string()}),
+    };
+    let cost = st.fc_cost.as_ref().map(|c| {
+        json!({
+            "steps": c.steps,
+            "mean": r6(c.mean_instructions),
+            "max": c.max_instructions,
+            "max_at_s": r6(c.max_at_s),
+            "budget": STEP_BUDGET_INSTRUCTIONS,
+            "within_budget": c.max_instructions <= STEP_BUDGET_INSTRUCTIONS,
+            "cpu_share": r6(c.step_cpu_share),
+            "background": {
+                "solves": c.solves,
+                "mean_per_solve": r6(c.solve_mean_instructions),
+                "max": c.background_max_instructions,
+                "max_at_s": r6(c.background_max_at_s),
+                "cpu_share": r6(c.background_cpu_share),
+            },
+            "stack": c.stack_report,
+        })
+    });
     json!({
         "scenario": opts.scenario.name,
         "seed": opts.seed,
         "camera": opts.camera.name(),
+        "flight_computer": fc,
+        "fc_step_instructions": cost,
         "sim_time_s": r6(st.sim_time_s),
         "wall_time_s": r6(wall),
         "real_time_factor": r6(if wall > 0.0 { st.sim_time_s / wall } else { f64::NAN }),
@@ -139,6 +170,7 @@ pub fn summary_json(opts: &FlyOptions, st: &RunStats, wall: f64, files: &[PathBu
             "rms_error_m": "true minus desired position over the tracking phase",
             "estimate_rms_error_m": "estimated minus true position over the tracking phase",
             "max_tilt_deg": "largest true tilt while airborne",
+            "fc_step_instructions": "the firmware's instructions per control step under QEMU (-icount shift=0: SysTick counts / 0.168); budget 20 % of the 2 ms period at 168 MHz; background: the pose solves run after the steps (instructions per solve, largest run, and the core's share at one instruction per cycle)",
             "flow_velocity_rms_error_m_s": "optical-flow velocity (body frame, taken to the world frame with the true attitude) minus the true mean velocity over its frame pair, world x and y, while airborne",
         },
         "files": files.iter().filter_map(|f| f.file_name()).map(|f| f.to_string_lossy().to_string()).collect::<Vec<_>>(),

@@ -5,6 +5,7 @@
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod downward;
+pub mod fil;
 pub mod fly;
 pub mod imageio;
 pub mod model;

@@ -70,6 +70,10 @@ struct FlyArgs {
     /// Skip the PNG plots.
     #[arg(long)]
     no_plots: bool,
+    /// The flight computer: `sil` (the flight code in this process) or `qemu:PATH` (the firmware ELF built with
+    /// `--features fil`, run in qemu-system-arm's netduinoplus2 model, in lockstep over its UART).
+    #[arg(long, default_value = "sil", value_name = "sil|qemu:ELF")]
+    fc: String,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum, PartialEq, Eq)]
@@ -444,6 +448,10 @@ fn fly(a: &FlyArgs) -> Result<ExitCode> {
         CameraSim::Rendered => CameraMode::Rendered,
         CameraSim::Analytic => CameraMode::Analytic,
     };
+    let fc = match sim_host::fil::parse_fc(&a.fc)? {
+        None => sim_host::sil::FcChoice::Sil,
+        Some(elf) => sim_host::sil::FcChoice::Qemu(sim_host::fil::QemuOptions::new(elf)),
+    };
     let opts = FlyOptions {
         scenario,
         seed: a.seed,
@@ -451,6 +459,7 @@ fn fly(a: &FlyArgs) -> Result<ExitCode> {
         camera,
         out: a.out.clone(),
         plots: !a.no_plots,
+        fc,
     };
     let bar = ProgressBar::new(1000);
     bar.set_style(
@@ -465,10 +474,10 @@ fn fly(a: &FlyArgs) -> Result<ExitCode> {
     bar.finish_and_clear();
     let st = &result.stats;
     eprintln!(
-        "{} s simulated in {:.1} s ({:.0}x real time), {} sweep passes, {}",
+        "{} s simulated in {:.1} s ({} real time), {} sweep passes, {}",
         format_args!("{:.1}", st.sim_time_s),
         result.wall_time_s,
-        st.sim_time_s / result.wall_time_s.max(1e-9),
+        rtf_text(st.sim_time_s / result.wall_time_s.max(1e-9)),
         st.passes_done,
         if st.crashed {
             format!("CRASHED: {}", st.crash_reason.clone().unwrap_or_default())
@@ -488,6 +497,26 @@ fn fly(a: &FlyArgs) -> Result<ExitCode> {
         1e3 * st.estimate_rms_error_m[2],
         st.max_tilt_deg
     );
+    if let Some(c) = &st.fc_cost {
+        let budget = sim_host::fil::STEP_BUDGET_INSTRUCTIONS;
+        eprintln!(
+            "firmware control step: mean {:.0} instructions, max {} at {:.2} s (budget {budget}: {}); {:.1} % of the core",
+            c.mean_instructions,
+            c.max_instructions,
+            c.max_at_s,
+            if c.max_instructions <= budget { "within" } else { "OVER" },
+            100.0 * c.step_cpu_share
+        );
+        eprintln!(
+            "firmware pose solves (background): {} solves, mean {:.0} instructions each, largest run {} at {:.2} s; {:.1} % of the core",
+            c.solves,
+            c.solve_mean_instructions,
+            c.background_max_instructions,
+            c.background_max_at_s,
+            100.0 * c.background_cpu_share
+        );
+        eprintln!("firmware {}", c.stack_report.as_deref().unwrap_or("gave no stack report"));
+    }
     eprintln!("wrote:");
     for f in &result.files {
         eprintln!("  {}", f.display());
@@ -522,5 +551,16 @@ fn main() -> ExitCode {
             eprintln!("error: {e:#}");
             ExitCode::from(1)
         }
+    }
+}
+
+/// A real-time factor for people: "450x", "2.3x", "0.27x".
+fn rtf_text(rtf: f64) -> String {
+    if rtf >= 10.0 {
+        format!("{rtf:.0}x")
+    } else if rtf >= 1.0 {
+        format!("{rtf:.1}x")
+    } else {
+        format!("{rtf:.2}x")
     }
 }

@@ -731,7 +731,7 @@ impl Scenario {
             },
             flow: FlowConfig {
                 mount: self.down_camera_mount(),
-                track_sigma: (0.05 / self.down_camera.fx_px) as f32,
+                track_sigma: 0.05 / self.down_camera.fx_px as f32,
                 ..FlowConfig::default()
             },
         }
@@ -814,6 +814,17 @@ mod tests {
         let c = s.forward_camera_model();
         assert_eq!((c.width, c.height, c.fx, c.fy, c.cx, c.cy), (640, 480, 320.0, 320.0, 320.0, 240.0));
         assert_eq!(s.forward_camera_mount(), CameraMount::FORWARD_AT_CENTRE);
+        // The flight code's configuration from the file is the firmware's built-in one, bit for bit (the
+        // firmware-in-the-loop run compares motor commands with the simulator's).
+        let (a, b) = (s.flight_config(), FlightConfig::paper());
+        assert_eq!(a.control.vehicle, b.control.vehicle);
+        assert_eq!(a.control.gains, b.control.gains);
+        assert_eq!(a.control.estimator, b.control.estimator);
+        assert_eq!(a.control.trajectory, b.control.trajectory);
+        assert_eq!(a.control.failsafe, b.control.failsafe);
+        assert_eq!(a.control.home_m, b.control.home_m);
+        assert_eq!(a.vision, b.vision);
+        assert_eq!(a.flow, b.flow);
         // The file's downward camera is the built-in default.
         assert_eq!(s.down_camera, DownCameraConfig::default());
         assert_eq!(s.down_camera_mount(), CameraMount::DOWN_AT_CENTRE);

@@ -5,10 +5,12 @@
 //! station measures each frame (full rendered image through vision-core's detector, or the analytic
 //! projection with edge noise) and sends the measurement over a link with latency and jitter; operator
 //! commands and heartbeats go the same way. At the downward camera's rate it renders the floor (or projects
-//! floor points analytically), computes the optical flow of each frame pair and sends its statistics. At the control rate the flight stack's `step` runs with the IMU
-//! samples and the messages delivered since the last step. A run is a pure function of
-//! (scenario, seed, camera mode).
+//! floor points analytically), computes the optical flow of each frame pair and sends its statistics. At the
+//! control rate the flight computer's step runs with the IMU samples and the messages delivered since the last
+//! step: the flight stack in this process, or the firmware in QEMU ([`crate::fil`]), which compute the same
+//! bits. A run is a pure function of (scenario, seed, camera mode).
 use crate::downward::{CamPose, GroundFlow, analytic_flow};
+use crate::fil::{QemuFc, QemuOptions};
 use crate::model::{ModelParams, Quadrotor, quat_to_mat};
 use crate::render::{DownPose, DownRenderer, ForwardRenderer};
 use crate::rng::{SimRng, splitmix64};
@@ -19,7 +21,7 @@ use anyhow::Result;
 use control_core::estimator::ImuSample;
 use control_core::{Command, FlightMode};
 use flight_core::flow::FlowOutcome;
-use flight_core::{FlightStack, StepInput, StepOutput};
+use flight_core::{FlightConfig, FlightStack, StepInput, StepReport};
 use geometry::frames::Attitude;
 use geometry::{Mat3, Vec3};
 use protocol::{FlowMeasurement, Uplink, VisionMeasurement};
@@ -43,6 +45,47 @@ impl CameraMode {
             CameraMode::Analytic => "analytic",
         }
     }
+}
+
+/// Which flight computer flies.
+#[derive(Clone, Debug)]
+pub enum FcChoice {
+    /// The flight stack compiled into this process (software in the loop).
+    Sil,
+    /// The firmware ELF in QEMU (firmware in the loop).
+    Qemu(QemuOptions),
+}
+
+enum Fc {
+    Sil(Box<FlightStack>),
+    Qemu(Box<QemuFc>),
+}
+
+/// The firmware's cost per control step (firmware in the loop).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FcCost {
+    /// Steps measured.
+    pub steps: u64,
+    /// Instructions per step, mean.
+    pub mean_instructions: f64,
+    /// Instructions per step, largest.
+    pub max_instructions: u32,
+    /// Simulated time of the largest (s).
+    pub max_at_s: f64,
+    /// Pose solves the background work ran (frames).
+    pub solves: u64,
+    /// Instructions per pose solve, mean over the background runs (one frame each, mostly).
+    pub solve_mean_instructions: f64,
+    /// Instructions of the largest background run after one step.
+    pub background_max_instructions: u32,
+    /// Simulated time of the largest background run (s).
+    pub background_max_at_s: f64,
+    /// Share of the core the background work took over the flight (at one instruction per cycle, 168 MHz).
+    pub background_cpu_share: f64,
+    /// Share of the core the control steps took.
+    pub step_cpu_share: f64,
+    /// The firmware's stack report (`stack: used=.. of .. bytes, free=..`), when it gave one.
+    pub stack_report: Option<String>,
 }
 
 /// One recorded instant (at the record rate).
@@ -154,6 +197,10 @@ pub struct RunStats {
     /// Flow velocity minus the true mean velocity of its frame pair, RMS over world x and y while airborne
     /// (m/s; NaN without flow).
     pub flow_rms_error_m_s: [f64; 2],
+    /// The firmware's cost per step, when the firmware flew.
+    pub fc_cost: Option<FcCost>,
+    /// Why the flight computer stopped answering, if it did (the run ends there).
+    pub fc_error: Option<String>,
 }
 
 /// A software-in-the-loop run in progress.
@@ -162,7 +209,10 @@ pub struct Sil {
     seed: u64,
     mode: CameraMode,
     quad: Quadrotor,
-    stack: FlightStack,
+    fc: Option<Fc>,
+    motor_log: Option<Vec<[u32; 4]>>,
+    cost_sum: f64,
+    background_sum: f64,
     imu: ImuModel,
     renderer: Option<ForwardRenderer>,
     vision: GroundVision,
@@ -191,7 +241,7 @@ pub struct Sil {
     pending_imu: Vec<ImuSample>,
     pending_mag: Option<Vec3>,
     motor_cmd: [f32; 4],
-    last_out: Option<StepOutput>,
+    last_out: Option<StepReport>,
     records: Vec<Record>,
     stats: RunStats,
     tracking: Rms,
@@ -202,6 +252,28 @@ pub struct Sil {
     was_airborne: bool,
     done_at: Option<u64>,
     last_failsafe: Option<control_core::Failsafe>,
+}
+
+/// The parts of a flight configuration that differ from the firmware's built-in one.
+pub fn firmware_config_differences(cfg: &FlightConfig) -> Vec<&'static str> {
+    let fw = FlightConfig::paper();
+    let (a, b) = (&cfg.control, &fw.control);
+    let mut d = Vec::new();
+    for (name, same) in [
+        ("vehicle", a.vehicle == b.vehicle),
+        ("gains", a.gains == b.gains),
+        ("estimator", a.estimator == b.estimator),
+        ("trajectory", a.trajectory == b.trajectory),
+        ("failsafe", a.failsafe == b.failsafe),
+        ("model.start_position_m (home)", a.home_m == b.home_m),
+        ("forward_camera or the line (vision)", cfg.vision == fw.vision),
+        ("down_camera (flow)", cfg.flow == fw.flow),
+    ] {
+        if !same {
+            d.push(name);
+        }
+    }
+    d
 }
 
 /// Roll, pitch, yaw (from facing the wall) of a world-from-body rotation, in f64.
@@ -215,8 +287,14 @@ fn attitude_of(r: &[[f64; 3]; 3]) -> [f64; 3] {
 }
 
 impl Sil {
-    /// Prepares a run.
+    /// Prepares a run with the flight stack in this process.
     pub fn new(scenario: &Scenario, seed: u64, mode: CameraMode) -> Result<Self> {
+        Self::with_fc(scenario, seed, mode, &FcChoice::Sil)
+    }
+
+    /// Prepares a run with the chosen flight computer. The firmware flies its built-in configuration
+    /// (`FlightConfig::paper()`): a scenario whose flight code configuration differs is refused.
+    pub fn with_fc(scenario: &Scenario, seed: u64, mode: CameraMode, fc: &FcChoice) -> Result<Self> {
         scenario.validate()?;
         let m = &scenario.model;
         let params = ModelParams::from_vehicle(
@@ -230,7 +308,23 @@ impl Sil {
         let q0 = geometry::Quat::from_mat3(&r0);
         let quad =
             Quadrotor::new(params, m.start_position_m, [q0.w as f64, q0.x as f64, q0.y as f64, q0.z as f64]);
-        let stack = FlightStack::new(scenario.flight_config()).map_err(|e| anyhow::anyhow!("{e}"))?;
+        let fc = match fc {
+            FcChoice::Sil => Fc::Sil(Box::new(
+                FlightStack::new(scenario.flight_config()).map_err(|e| anyhow::anyhow!("{e}"))?,
+            )),
+            FcChoice::Qemu(opts) => {
+                let differs = firmware_config_differences(&scenario.flight_config());
+                if !differs.is_empty() {
+                    anyhow::bail!(
+                        "the firmware flies its built-in configuration (the paper scenario's); scenario `{}` differs \
+                         in: {}",
+                        scenario.name,
+                        differs.join(", ")
+                    );
+                }
+                Fc::Qemu(Box::new(QemuFc::start(opts)?))
+            }
+        };
         let dt_us = (m.physics_step_s * 1e6).round() as u64;
         let every = |hz: f64| ((1e6 / hz) / dt_us as f64).round() as u64;
         let renderer = match mode {
@@ -247,7 +341,10 @@ impl Sil {
             seed,
             mode,
             quad,
-            stack,
+            fc: Some(fc),
+            motor_log: None,
+            cost_sum: 0.0,
+            background_sum: 0.0,
             imu: ImuModel::new(&scenario.imu, seed),
             renderer,
             vision: GroundVision::new(scenario),
@@ -525,13 +622,58 @@ impl Sil {
             self.link.pop_front();
             delivered.push(msg);
         }
-        let out = self.stack.step(&StepInput {
+        let input = StepInput {
             time_us: self.t_us,
             imu: &self.pending_imu,
             mag: self.pending_mag.take(),
             uplink: &delivered,
-        });
+        };
+        let out = match self.fc.as_mut() {
+            Some(Fc::Sil(stack)) => {
+                let out = stack.step(&input).report();
+                // Background work, in the firmware's order: after the step, fused by the next one.
+                stack.solve_pending();
+                out
+            }
+            Some(Fc::Qemu(q)) => match q.step(&input) {
+                Ok(step) => {
+                    let t_s = self.t_us as f64 * 1e-6;
+                    let cost = self.stats.fc_cost.get_or_insert_with(FcCost::default);
+                    let instr = step.instructions();
+                    cost.steps += 1;
+                    self.cost_sum += instr as f64;
+                    cost.mean_instructions = self.cost_sum / cost.steps as f64;
+                    if instr > cost.max_instructions {
+                        cost.max_instructions = instr;
+                        cost.max_at_s = t_s;
+                    }
+                    let bg = step.background_instructions();
+                    if step.background_solves > 0 {
+                        cost.solves += step.background_solves as u64;
+                        self.background_sum += bg as f64;
+                        cost.solve_mean_instructions = self.background_sum / cost.solves as f64;
+                    }
+                    if bg > cost.background_max_instructions {
+                        cost.background_max_instructions = bg;
+                        cost.background_max_at_s = t_s;
+                    }
+                    let flown = t_s.max(1e-6) * crate::fil::CORE_INSTRUCTIONS_PER_S;
+                    cost.step_cpu_share = self.cost_sum / flown;
+                    cost.background_cpu_share = self.background_sum / flown;
+                    step.report
+                }
+                Err(e) => {
+                    self.stats.fc_error = Some(format!("{e:#}"));
+                    self.fc = None;
+                    return;
+                }
+            },
+            None => return,
+        };
         self.pending_imu.clear();
+        if let Some(log) = self.motor_log.as_mut() {
+            log.push(out.control.motors_rad_s.map(f32::to_bits));
+        }
         self.motor_cmd = out.control.motors_rad_s;
         let st = out.control.status;
         let t = self.time_s();
@@ -546,8 +688,7 @@ impl Sil {
         self.stats.frames_no_target = out.vision.no_target;
         self.stats.frames_rejected = out.vision.rejected;
         self.stats.flow = out.flow_counters;
-        let ec = self.stack.control().estimator().counters();
-        self.stats.flow_fused = [ec.flow_accepted, ec.flow_rejected];
+        self.stats.flow_fused = [out.estimator.flow_accepted, out.estimator.flow_rejected];
         if let Some(FlowOutcome::Velocity { t_next_us, velocity, .. }) = out.flow {
             self.score_flow(t_next_us, velocity.velocity_m_s, velocity.std_m_s);
         }
@@ -651,7 +792,7 @@ impl Sil {
         self.check_crash();
         self.stats.sim_time_s = self.time_s();
         let landed_done = self.done_at.is_some_and(|t| self.t_us >= t + 500_000);
-        !(self.stats.crashed || landed_done || self.t_us >= end_us)
+        !(self.stats.crashed || landed_done || self.t_us >= end_us || self.stats.fc_error.is_some())
     }
 
     /// Runs to the end (landed and disarmed, crashed, or `duration_s`), calling `progress` with the simulated
@@ -668,8 +809,31 @@ impl Sil {
         self.finish()
     }
 
-    /// Final statistics.
+    /// Keeps the bits of every control step's motor commands (for comparing flight computers).
+    pub fn log_motor_commands(&mut self) {
+        self.motor_log = Some(Vec::new());
+    }
+
+    /// The motor commands of every control step so far (bits of the f32 rotor speeds), when logged.
+    pub fn motor_commands(&self) -> Option<&[[u32; 4]]> {
+        self.motor_log.as_deref()
+    }
+
+    /// Final statistics. With the firmware in QEMU, ends it and keeps its stack report.
     pub fn finish(&mut self) -> RunStats {
+        if let Some(Fc::Qemu(q)) = self.fc.take() {
+            match q.finish() {
+                Ok(console) => {
+                    if let Some(c) = self.stats.fc_cost.as_mut() {
+                        c.stack_report =
+                            console.lines().find(|l| l.starts_with("stack:")).map(str::to_string);
+                    }
+                }
+                Err(e) => {
+                    self.stats.fc_error.get_or_insert(format!("at the end of the run: {e:#}"));
+                }
+            }
+        }
         self.stats.rms_error_m = self.tracking.get();
         self.stats.estimate_rms_error_m = self.estimate.get();
         let f = self.flow_err.get();

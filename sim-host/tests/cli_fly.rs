@@ -59,13 +59,18 @@ fn fly_rejects_bad_scenarios_and_options_with_exit_1() {
     let cases = [
         (base.replace("mass_kg = 0.38", "mass_kg = 0.38\nmass_lb = 1.0"), "mass_lb"),
         (
-            base.replacen("k = [178.25, 20.5, 63.73225, 56.08439]", "k = [178.25, 20.5, 63.73225, 560.0]", 1),
+            base.replacen(
+                "k = [178.25, 20.5, 63.73226, 56.084393]",
+                "k = [178.25, 20.5, 63.73226, 560.0]",
+                1,
+            ),
             "gains.roll",
         ),
         (base.replace("y_d_m = 1.30", "y_d_m = -1.0"), "trajectory.y_d_m"),
         (base.replace("latency_s = 0.05", "latency_s = 0.9"), "forward_camera.latency_s"),
     ];
     for (i, (text, field)) in cases.iter().enumerate() {
+        assert_ne!(text, &base, "case `{field}` no longer edits the scenario");
         let path = dir.join(format!("bad{i}.toml"));
         std::fs::write(&path, text).unwrap();
         let r = bin()

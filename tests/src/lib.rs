@@ -1,7 +1,10 @@
 //! Shared helpers of the system tests: sampling the flight envelope and summarising errors.
 use geometry::frames::Attitude;
 use geometry::{Vec3, deg};
+use sim_host::Scenario;
+use sim_host::fly::tilt_bound_deg;
 use sim_host::rng::SimRng;
+use sim_host::sil::RunStats;
 
 /// One test frame: a vehicle pose and the lighting and sensor effects to render it with.
 #[derive(Clone, Copy, Debug)]
@@ -64,4 +67,50 @@ pub fn both_ends_in_view(scenario: &sim_host::Scenario, f: &EnvelopeFrame) -> bo
         let p = r_cw.mul_vec(t.corner(c) - f.position);
         p.z > 0.0 && cam.contains(cam.normalized_to_pixel(geometry::Vec2::new(p.x / p.z, p.y / p.z)), 10.0)
     })
+}
+
+/// The issue's bounds: RMS tracking error y, z <= 3 cm, x <= 5 cm; no crash; tilt within the bound; with the
+/// downward camera, the flow velocity's RMS error <= 0.05 m/s in x and y and most frame pairs used.
+pub fn check_flight(st: &RunStats, s: &Scenario, what: &str) {
+    check_partial_flight(st, s, what);
+    assert_eq!(st.passes_done, 2 * s.trajectory.sweeps as u16, "{what}: sweeps not completed");
+}
+
+/// The bounds of [`check_flight`] on a flight cut short: everything but the number of sweeps.
+pub fn check_partial_flight(st: &RunStats, s: &Scenario, what: &str) {
+    eprintln!(
+        "{what}: rms x {:.1} y {:.1} z {:.1} mm, estimate {:.1} {:.1} {:.1} mm, max tilt {:.2} deg, passes {}, landed {}, \
+         flow rms x {:.4} y {:.4} m/s ({} of {} pairs, {} fused, {} gated)",
+        1e3 * st.rms_error_m[0],
+        1e3 * st.rms_error_m[1],
+        1e3 * st.rms_error_m[2],
+        1e3 * st.estimate_rms_error_m[0],
+        1e3 * st.estimate_rms_error_m[1],
+        1e3 * st.estimate_rms_error_m[2],
+        st.max_tilt_deg,
+        st.passes_done,
+        st.landed,
+        st.flow_rms_error_m_s[0],
+        st.flow_rms_error_m_s[1],
+        st.flow.velocities,
+        st.flow.pairs,
+        st.flow_fused[0],
+        st.flow_fused[1],
+    );
+    assert!(!st.crashed, "{what}: crashed: {:?}", st.crash_reason);
+    if st.flow_camera {
+        let [fx, fy] = st.flow_rms_error_m_s;
+        assert!(fx <= 0.05 && fy <= 0.05, "{what}: flow velocity rms error {fx}, {fy} m/s");
+        assert!(st.flow.velocities as f64 >= 0.8 * st.flow.pairs as f64, "{what}: {:?}", st.flow);
+    }
+    assert!(st.rms_error_m[0] <= 0.05, "{what}: x rms {}", st.rms_error_m[0]);
+    assert!(st.rms_error_m[1] <= 0.03, "{what}: y rms {}", st.rms_error_m[1]);
+    assert!(st.rms_error_m[2] <= 0.03, "{what}: z rms {}", st.rms_error_m[2]);
+    assert!(
+        st.max_tilt_deg <= tilt_bound_deg(s),
+        "{what}: tilt {} > bound {}",
+        st.max_tilt_deg,
+        tilt_bound_deg(s)
+    );
+    assert!(st.failsafes.is_empty(), "{what}: failsafes {:?}", st.failsafes);
 }

@@ -7,61 +7,20 @@ use control_core::params::FlightParams;
 use geometry::frames::Attitude;
 use geometry::{Mat3, Quat, Vec3};
 use sim_host::Scenario;
-use sim_host::fly::tilt_bound_deg;
 use sim_host::model::{ModelParams, Quadrotor, quat_to_mat};
 use sim_host::sil::{CameraMode, RunStats, Sil};
+use system_tests::check_flight;
 
 fn fly(s: &Scenario, seed: u64, mode: CameraMode) -> RunStats {
     let mut sil = Sil::new(s, seed, mode).unwrap();
     sil.run(s.mission.max_duration_s, |_| {})
 }
 
-/// The issue's bounds: RMS tracking error y, z <= 3 cm, x <= 5 cm; no crash; tilt within the bound; with the
-/// downward camera, the flow velocity's RMS error <= 0.05 m/s in x and y and most frame pairs used.
-fn check(st: &RunStats, s: &Scenario, what: &str) {
-    eprintln!(
-        "{what}: rms x {:.1} y {:.1} z {:.1} mm, estimate {:.1} {:.1} {:.1} mm, max tilt {:.2} deg, passes {}, landed {}, \
-         flow rms x {:.4} y {:.4} m/s ({} of {} pairs, {} fused, {} gated)",
-        1e3 * st.rms_error_m[0],
-        1e3 * st.rms_error_m[1],
-        1e3 * st.rms_error_m[2],
-        1e3 * st.estimate_rms_error_m[0],
-        1e3 * st.estimate_rms_error_m[1],
-        1e3 * st.estimate_rms_error_m[2],
-        st.max_tilt_deg,
-        st.passes_done,
-        st.landed,
-        st.flow_rms_error_m_s[0],
-        st.flow_rms_error_m_s[1],
-        st.flow.velocities,
-        st.flow.pairs,
-        st.flow_fused[0],
-        st.flow_fused[1],
-    );
-    assert!(!st.crashed, "{what}: crashed: {:?}", st.crash_reason);
-    if st.flow_camera {
-        let [fx, fy] = st.flow_rms_error_m_s;
-        assert!(fx <= 0.05 && fy <= 0.05, "{what}: flow velocity rms error {fx}, {fy} m/s");
-        assert!(st.flow.velocities as f64 >= 0.8 * st.flow.pairs as f64, "{what}: {:?}", st.flow);
-    }
-    assert_eq!(st.passes_done, 2 * s.trajectory.sweeps as u16, "{what}: sweeps not completed");
-    assert!(st.rms_error_m[0] <= 0.05, "{what}: x rms {}", st.rms_error_m[0]);
-    assert!(st.rms_error_m[1] <= 0.03, "{what}: y rms {}", st.rms_error_m[1]);
-    assert!(st.rms_error_m[2] <= 0.03, "{what}: z rms {}", st.rms_error_m[2]);
-    assert!(
-        st.max_tilt_deg <= tilt_bound_deg(s),
-        "{what}: tilt {} > bound {}",
-        st.max_tilt_deg,
-        tilt_bound_deg(s)
-    );
-    assert!(st.failsafes.is_empty(), "{what}: failsafes {:?}", st.failsafes);
-}
-
 #[test]
 fn paper_scenario_rendered_default_seed() {
     let s = Scenario::paper();
     let st = fly(&s, 1, CameraMode::Rendered);
-    check(&st, &s, "rendered, seed 1");
+    check_flight(&st, &s, "rendered, seed 1");
     assert!(st.landed, "lands at the end");
     assert!(
         st.frames_solved as f64 > 0.85 * st.frames as f64,
@@ -76,7 +35,7 @@ fn paper_scenario_seeds_1_to_10_analytic() {
     let s = Scenario::paper();
     for seed in 1..=10 {
         let st = fly(&s, seed, CameraMode::Analytic);
-        check(&st, &s, &format!("analytic, seed {seed}"));
+        check_flight(&st, &s, &format!("analytic, seed {seed}"));
     }
 }
 
@@ -87,7 +46,7 @@ fn paper_scenario_seeds_2_to_10_rendered_one_sweep() {
     s.trajectory.sweeps = 1;
     for seed in 2..=10 {
         let st = fly(&s, seed, CameraMode::Rendered);
-        check(&st, &s, &format!("rendered, seed {seed}, one sweep"));
+        check_flight(&st, &s, &format!("rendered, seed {seed}, one sweep"));
     }
 }
 
@@ -104,10 +63,11 @@ fn without_the_flow_camera_it_still_flies_and_says_so() {
         camera: CameraMode::Rendered,
         out: out.clone(),
         plots: false,
+        fc: sim_host::sil::FcChoice::Sil,
     };
     let r = sim_host::fly::fly(&opts, |_, _| {}).unwrap();
     assert!(!r.stats.flow_camera && r.stats.flow.pairs == 0);
-    check(&r.stats, &s, "rendered, seed 1, one sweep, no flow camera");
+    check_flight(&r.stats, &s, "rendered, seed 1, one sweep, no flow camera");
     assert_eq!(r.summary["flow"]["camera"], "off");
     assert!(r.summary["flow"]["degraded"].as_str().unwrap().contains("no downward camera"));
     assert!(r.summary["flow_velocity_rms_error_m_s"].is_null());

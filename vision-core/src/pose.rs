@@ -419,6 +419,9 @@ impl Problem {
                 let (r_new, t_new) = self.apply(&r_cw, t, &step);
                 let cost_new = self.cost(&r_new, t_new);
                 let size = step[..np].iter().map(|v| v * v).sum::<f32>();
+                // Below these, f32 cannot tell the costs apart (relative 1e-6) or the step is under a
+                // micrometre and a microradian: converged. Without them the last iterations spent up to ten
+                // trials each on rounding noise.
                 if cost_new <= cost {
                     let rel = (cost - cost_new) / cost.max(1e-30);
                     r_cw = r_new;
@@ -426,10 +429,10 @@ impl Problem {
                     cost = cost_new;
                     lambda = (lambda * 0.25).max(1e-9);
                     improved = true;
-                    converged = rel < 1e-9 || size < 1e-14;
+                    converged = rel < 1e-6 || size < 1e-12;
                     break;
                 }
-                if size < 1e-14 {
+                if size < 1e-12 || cost_new - cost <= 1e-6 * cost {
                     break;
                 }
                 lambda *= 8.0;

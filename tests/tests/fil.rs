@@ -1,0 +1,107 @@
+//! Firmware in the loop: the firmware's ELF in QEMU flies the paper scenario in lockstep with the simulator, and
+//! its motor commands are those of the flight code compiled into the simulator, bit for bit.
+//!
+//! Needs `qemu-system-arm` and the firmware built with `cd firmware && cargo build --release --features fil
+//! --target-dir target/fil` (`.ci/run` does both). Without them the test says what is missing and passes,
+//! unless `REQUIRE_QEMU=1` (set in CI), which makes a missing piece a failure.
+use sim_host::Scenario;
+use sim_host::fil::{QEMU, QemuOptions, STEP_BUDGET_INSTRUCTIONS};
+use sim_host::sil::{CameraMode, FcChoice, Sil};
+use std::path::PathBuf;
+use system_tests::{check_flight, check_partial_flight};
+
+fn elf() -> PathBuf {
+    match std::env::var_os("FIL_ELF") {
+        Some(p) => PathBuf::from(p),
+        None => PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../firmware/target/fil/thumbv7em-none-eabihf/release/firmware"),
+    }
+}
+
+/// Whether the test can run here; panics when `REQUIRE_QEMU=1` and it cannot.
+fn available() -> bool {
+    let required = std::env::var("REQUIRE_QEMU").is_ok_and(|v| v == "1");
+    let qemu = std::process::Command::new(QEMU).arg("--version").output().is_ok_and(|o| o.status.success());
+    let missing = if !qemu {
+        Some(format!("{QEMU} is not installed"))
+    } else if !elf().exists() {
+        Some(format!("no firmware ELF at {} (build it with --features fil)", elf().display()))
+    } else {
+        None
+    };
+    match missing {
+        None => true,
+        Some(why) if required => panic!("REQUIRE_QEMU=1 but {why}"),
+        Some(why) => {
+            eprintln!("skipped: {why}");
+            false
+        }
+    }
+}
+
+/// How long to fly: `FIL_SECONDS` (seconds, or `full` for the whole paper flight); 25 s by default (take-off,
+/// hover and the first sweep).
+fn seconds(scenario: &Scenario) -> (f64, bool) {
+    match std::env::var("FIL_SECONDS").ok().as_deref() {
+        Some("full") => (scenario.mission.max_duration_s, true),
+        Some(v) => (v.parse().expect("FIL_SECONDS: seconds or `full`"), false),
+        None => (25.0, false),
+    }
+}
+
+#[test]
+fn firmware_in_qemu_flies_like_the_simulator_bit_for_bit() {
+    if !available() {
+        return;
+    }
+    let scenario = Scenario::paper();
+    let (seconds, full) = seconds(&scenario);
+    let fly = |fc: &FcChoice| {
+        let mut sil = Sil::with_fc(&scenario, 3, CameraMode::Analytic, fc).unwrap();
+        sil.log_motor_commands();
+        let st = sil.run(seconds, |_| {});
+        (st, sil.motor_commands().unwrap().to_vec())
+    };
+    let (host, host_cmds) = fly(&FcChoice::Sil);
+    let (fw, fw_cmds) = fly(&FcChoice::Qemu(QemuOptions::new(elf())));
+    assert!(fw.fc_error.is_none(), "{:?}", fw.fc_error);
+    let cost = fw.fc_cost.clone().expect("the firmware's step costs");
+    eprintln!(
+        "{} control steps over {:.1} s; firmware step mean {:.0} instructions, max {} at {:.2} s; {} pose solves, \
+         mean {:.0} instructions, {:.1} % of the core; {}",
+        fw_cmds.len(),
+        fw.sim_time_s,
+        cost.mean_instructions,
+        cost.max_instructions,
+        cost.max_at_s,
+        cost.solves,
+        cost.solve_mean_instructions,
+        100.0 * cost.background_cpu_share,
+        cost.stack_report.as_deref().unwrap_or("no stack report")
+    );
+    assert_eq!(host_cmds.len(), fw_cmds.len(), "both ran the same number of steps");
+    if let Some(k) = host_cmds.iter().zip(&fw_cmds).position(|(a, b)| a != b) {
+        panic!(
+            "motor commands differ first at control step {k} (t = {:.3} s): simulator {:?}, firmware {:?}",
+            (k + 1) as f64 * 0.002,
+            host_cmds[k].map(f32::from_bits),
+            fw_cmds[k].map(f32::from_bits)
+        );
+    }
+    // The same commands fly the same flight, within the closed-loop issue's bounds.
+    assert_eq!(host.rms_error_m, fw.rms_error_m);
+    assert!(cost.solves > 0 && fw.frames_solved as u64 >= cost.solves - 1, "{cost:?} {fw:?}");
+    if full {
+        check_flight(&fw, &scenario, "firmware in QEMU, seed 3");
+        assert!(fw.landed);
+    } else {
+        check_partial_flight(&fw, &scenario, "firmware in QEMU, seed 3");
+        assert!(fw.passes_done >= 1, "the first sweep is flown: {fw:?}");
+    }
+    assert!(
+        cost.max_instructions <= STEP_BUDGET_INSTRUCTIONS,
+        "the step's worst case {} instructions exceeds the budget {STEP_BUDGET_INSTRUCTIONS}",
+        cost.max_instructions
+    );
+    assert!(cost.stack_report.is_some_and(|s| s.contains("free=")));
+}
