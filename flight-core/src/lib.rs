@@ -280,6 +280,12 @@ impl FlightStack {
         })
     }
 
+    /// Changes a parameter as a `ParamSet` message would (on the ground only), without a message: for replay
+    /// with changed parameters.
+    pub fn set_param(&mut self, id: control_core::params::ParamId, value: f32) -> control_core::ParamReply {
+        self.control.set_param(id, value)
+    }
+
     /// Frames waiting for [`FlightStack::solve_pending`].
     pub fn pending_solves(&self) -> usize {
         self.jobs.len()

@@ -27,6 +27,8 @@ pub struct FlyOptions {
     pub plots: bool,
     /// The flight computer.
     pub fc: FcChoice,
+    /// Write the flight log (`flight.log`) for replay.
+    pub log: bool,
 }
 
 /// The outcome of a flight.
@@ -64,13 +66,34 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
     std::fs::create_dir_all(&opts.out).with_context(|| format!("cannot create {}", opts.out.display()))?;
     let end = opts.duration_s.unwrap_or(opts.scenario.mission.max_duration_s);
     let mut sil = Sil::with_fc(&opts.scenario, opts.seed, opts.camera, &opts.fc)?;
+    let log_path = opts.out.join(crate::flightlog::LOG_FILE);
+    if opts.log {
+        let header = crate::flightlog::LogHeader {
+            format_version: crate::flightlog::LOG_FORMAT_VERSION,
+            schema_hash: crate::flightlog::schema_hash(),
+            wire_version: protocol::frame::WIRE_VERSION,
+            writer: format!("sim-host {}", env!("CARGO_PKG_VERSION")),
+            scenario_toml: toml::to_string(&opts.scenario).context("the scenario as TOML")?,
+            seed: opts.seed,
+            camera: opts.camera.name().to_string(),
+            flight_computer: match &opts.fc {
+                FcChoice::Sil => "sil".to_string(),
+                FcChoice::Qemu(q) => format!("qemu:{}", q.elf.display()),
+            },
+        };
+        sil.record_log(crate::flightlog::LogWriter::create(&log_path, &header)?);
+    }
     let t0 = Instant::now();
     let stats = sil.run(end, |t| progress(t, end));
     let wall = t0.elapsed().as_secs_f64();
+    let mut files = Vec::new();
+    if opts.log {
+        sil.finish_log()?;
+        files.push(log_path);
+    }
     if let Some(e) = &stats.fc_error {
         anyhow::bail!("the flight computer failed after {:.3} s of flight: {e}", stats.sim_time_s);
     }
-    let mut files = Vec::new();
     let csv = opts.out.join("trajectory.csv");
     write_trajectory_csv(&csv, sil.records())?;
     files.push(csv);

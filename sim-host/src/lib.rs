@@ -6,11 +6,13 @@
 
 pub mod downward;
 pub mod fil;
+pub mod flightlog;
 pub mod fly;
 pub mod imageio;
 pub mod model;
 pub mod plot;
 pub mod render;
+pub mod replay;
 pub mod rng;
 pub mod scenario;
 pub mod sensors;

@@ -40,6 +40,18 @@ enum Command {
     Vision(VisionCommand),
     /// Fly a scenario in simulation with the flight code (software in the loop).
     Fly(FlyArgs),
+    /// Re-run the flight stack on a flight log's inputs and compare every output with the log, bit for bit.
+    Replay(ReplayArgs),
+}
+
+#[derive(Args, Debug)]
+struct ReplayArgs {
+    /// The flight log (`flight.log` written by `sim-host fly`).
+    log: PathBuf,
+    /// Change a parameter before the first step, e.g. `--set trajectory.speed_m_s=0.3` (repeatable); the replay
+    /// then reports the differences instead of failing on them.
+    #[arg(long = "set", value_name = "NAME=VALUE")]
+    set: Vec<String>,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -70,6 +82,9 @@ struct FlyArgs {
     /// Skip the PNG plots.
     #[arg(long)]
     no_plots: bool,
+    /// Do not write the flight log (`flight.log`, for `sim-host replay`).
+    #[arg(long)]
+    no_log: bool,
     /// The flight computer: `sil` (the flight code in this process) or `qemu:PATH` (the firmware ELF built with
     /// `--features fil`, run in qemu-system-arm's netduinoplus2 model, in lockstep over its UART).
     #[arg(long, default_value = "sil", value_name = "sil|qemu:ELF")]
@@ -460,6 +475,7 @@ fn fly(a: &FlyArgs) -> Result<ExitCode> {
         out: a.out.clone(),
         plots: !a.no_plots,
         fc,
+        log: !a.no_log,
     };
     let bar = ProgressBar::new(1000);
     bar.set_style(
@@ -544,12 +560,63 @@ fn main() -> ExitCode {
         Command::Vision(VisionCommand::Pose(a)) => vision_pose(a),
         Command::Vision(VisionCommand::Flow(a)) => vision_flow(a),
         Command::Fly(a) => fly(a),
+        Command::Replay(a) => replay(a),
     };
     match result {
         Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::from(1)
+        }
+    }
+}
+
+fn replay(a: &ReplayArgs) -> Result<ExitCode> {
+    use control_core::params::ParamId;
+    let mut overrides = Vec::new();
+    for kv in &a.set {
+        let Some((name, value)) = kv.split_once('=') else { bail!("--set {kv}: expected NAME=VALUE") };
+        let Some(id) = ParamId::from_name(name.trim()) else {
+            let names: Vec<&str> = ParamId::ALL.iter().map(|p| p.name()).collect();
+            bail!("--set {kv}: unknown parameter `{name}`; known: {}", names.join(", "));
+        };
+        let v: f32 =
+            value.trim().parse().map_err(|_| anyhow::anyhow!("--set {kv}: `{value}` is not a number"))?;
+        overrides.push((id, v));
+    }
+    let log = sim_host::flightlog::read_log(&a.log)?;
+    let t0 = std::time::Instant::now();
+    let s = sim_host::replay::replay(&log, &overrides)?;
+    let wall = t0.elapsed().as_secs_f64();
+    eprintln!(
+        "{}: {} steps ({:.1} s of flight) replayed in {:.2} s ({} real time); {} reports compared, {} differ",
+        a.log.display(),
+        s.steps,
+        s.sim_time_s,
+        wall,
+        rtf_text(s.sim_time_s / wall.max(1e-9)),
+        s.compared,
+        s.differing
+    );
+    for d in &log.damage {
+        eprintln!("damaged record {d}");
+    }
+    match (&s.first, overrides.is_empty()) {
+        (None, _) if log.damage.is_empty() => {
+            eprintln!("identical: every output matches the log bit for bit");
+            Ok(ExitCode::SUCCESS)
+        }
+        (None, _) => {
+            eprintln!("the intact records match, but {} were damaged", log.damage.len());
+            Ok(ExitCode::from(1))
+        }
+        (Some(d), true) => {
+            eprintln!("first difference: {d}");
+            Ok(ExitCode::from(1))
+        }
+        (Some(d), false) => {
+            eprintln!("with the changed parameters, first difference: {d}");
+            Ok(ExitCode::SUCCESS)
         }
     }
 }

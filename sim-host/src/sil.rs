@@ -11,6 +11,7 @@
 //! bits. A run is a pure function of (scenario, seed, camera mode).
 use crate::downward::{CamPose, GroundFlow, analytic_flow};
 use crate::fil::{QemuFc, QemuOptions};
+use crate::flightlog::LogRecord;
 use crate::model::{ModelParams, Quadrotor, quat_to_mat};
 use crate::render::{DownPose, DownRenderer, ForwardRenderer};
 use crate::rng::{SimRng, splitmix64};
@@ -211,6 +212,8 @@ pub struct Sil {
     quad: Quadrotor,
     fc: Option<Fc>,
     motor_log: Option<Vec<[u32; 4]>>,
+    flight_log: Option<crate::flightlog::LogWriter>,
+    log_error: Option<String>,
     cost_sum: f64,
     background_sum: f64,
     imu: ImuModel,
@@ -343,6 +346,8 @@ impl Sil {
             quad,
             fc: Some(fc),
             motor_log: None,
+            flight_log: None,
+            log_error: None,
             cost_sum: 0.0,
             background_sum: 0.0,
             imu: ImuModel::new(&scenario.imu, seed),
@@ -622,12 +627,9 @@ impl Sil {
             self.link.pop_front();
             delivered.push(msg);
         }
-        let input = StepInput {
-            time_us: self.t_us,
-            imu: &self.pending_imu,
-            mag: self.pending_mag.take(),
-            uplink: &delivered,
-        };
+        let step_mag = self.pending_mag.take();
+        let input =
+            StepInput { time_us: self.t_us, imu: &self.pending_imu, mag: step_mag, uplink: &delivered };
         let out = match self.fc.as_mut() {
             Some(Fc::Sil(stack)) => {
                 let out = stack.step(&input).report();
@@ -670,6 +672,17 @@ impl Sil {
             },
             None => return,
         };
+        if self.flight_log.is_some() {
+            let step = flight_core::fil::SensorStep {
+                time_us: self.t_us,
+                imu: heapless::Vec::from_slice(&self.pending_imu).unwrap_or_default(),
+                mag: step_mag,
+            };
+            let mut records: Vec<LogRecord> = delivered.iter().map(|m| LogRecord::Link(*m)).collect();
+            records.push(LogRecord::Step(step));
+            records.push(LogRecord::Report(out));
+            self.write_log(&records);
+        }
         self.pending_imu.clear();
         if let Some(log) = self.motor_log.as_mut() {
             log.push(out.control.motors_rad_s.map(f32::to_bits));
@@ -717,6 +730,17 @@ impl Sil {
 
     fn record(&mut self) {
         let Some(out) = self.last_out else { return };
+        if self.flight_log.is_some() {
+            let s = &self.quad.state;
+            let att = attitude_of(&quat_to_mat(s.q));
+            let truth = LogRecord::Truth {
+                time_us: self.t_us,
+                position_m: s.p.map(|v| v as f32),
+                velocity_m_s: s.v.map(|v| v as f32),
+                attitude_rad: att.map(|v| v as f32),
+            };
+            self.write_log(&[truth]);
+        }
         let s = &self.quad.state;
         let e = &out.control.estimate;
         let sp = &out.control.setpoint;
@@ -807,6 +831,39 @@ impl Sil {
         }
         progress(self.time_s());
         self.finish()
+    }
+
+    /// Records the flight into a log (`crate::flightlog`): every step's radio messages, sensors and report,
+    /// and the ground truth at the record rate.
+    pub fn record_log(&mut self, w: crate::flightlog::LogWriter) {
+        self.flight_log = Some(w);
+    }
+
+    /// Ends the log: flushes it and returns how many records it holds, or why writing failed.
+    pub fn finish_log(&mut self) -> Result<u64> {
+        if let Some(e) = self.log_error.take() {
+            anyhow::bail!("writing the flight log failed: {e}");
+        }
+        match self.flight_log.take() {
+            Some(w) => {
+                let n = w.records;
+                w.finish()?;
+                Ok(n)
+            }
+            None => Ok(0),
+        }
+    }
+
+    fn write_log(&mut self, records: &[LogRecord]) {
+        let Some(w) = self.flight_log.as_mut() else { return };
+        for r in records {
+            if let Err(e) = w.write(r) {
+                // Keep flying; the error is reported when the log is finished.
+                self.log_error = Some(format!("{e:#}"));
+                self.flight_log = None;
+                return;
+            }
+        }
     }
 
     /// Keeps the bits of every control step's motor commands (for comparing flight computers).

@@ -89,3 +89,38 @@ fn fly_rejects_bad_scenarios_and_options_with_exit_1() {
     let r = bin().args(["fly", "--duration", "-3", "--out", "x"]).output().unwrap();
     assert_eq!(r.status.code(), Some(1));
 }
+
+#[test]
+fn fly_writes_a_log_that_replay_matches_bit_for_bit() {
+    let dir = std::env::temp_dir().join(format!("sim-host-replay-{}", std::process::id()));
+    let r = bin()
+        .args(["fly", "--camera", "analytic", "--duration", "6", "--no-plots", "--seed", "4", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let log = dir.join("flight.log");
+    let r = bin().arg("replay").arg(&log).output().unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(0), "{err}");
+    assert!(err.contains("3000 steps") && err.contains("identical"), "{err}");
+    // A changed parameter: the differences are reported, not a failure.
+    let r = bin().arg("replay").arg(&log).args(["--set", "gains.altitude.a_z1=3"]).output().unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(0), "{err}");
+    assert!(err.contains("first difference: record"), "{err}");
+    // A damaged log: the replay of the intact records runs, the damage is named and it exits 1.
+    let mut bytes = std::fs::read(&log).unwrap();
+    let n = bytes.len();
+    bytes[n - 1000] ^= 0x21;
+    let bad = dir.join("bad.log");
+    std::fs::write(&bad, &bytes).unwrap();
+    let r = bin().arg("replay").arg(&bad).output().unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(err.contains("damaged record at byte"), "{err}");
+    // Bad options.
+    let r = bin().arg("replay").arg(&log).args(["--set", "no.such.param=1"]).output().unwrap();
+    assert_eq!(r.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("unknown parameter"));
+}

@@ -1,0 +1,130 @@
+//! Flight logs and replay: a flight's log replays bit for bit; a changed parameter shows as the first
+//! difference; damaged logs give errors with byte offsets and keep every intact record.
+use sim_host::Scenario;
+use sim_host::flightlog::{LOG_FILE, LogRecord, parse_log, read_log};
+use sim_host::fly::{FlyOptions, fly};
+use sim_host::replay::replay;
+use sim_host::rng::SimRng;
+use sim_host::sil::{CameraMode, FcChoice};
+use std::path::PathBuf;
+
+/// A 12 s flight (take-off, hover, start of the sweep) with its log; the bytes of the log.
+fn flown(name: &str) -> (PathBuf, Vec<u8>) {
+    let out = std::env::temp_dir().join(format!("replay-test-{name}-{}", std::process::id()));
+    let opts = FlyOptions {
+        scenario: Scenario::paper(),
+        seed: 5,
+        duration_s: Some(12.0),
+        camera: CameraMode::Analytic,
+        out: out.clone(),
+        plots: false,
+        fc: FcChoice::Sil,
+        log: true,
+    };
+    fly(&opts, |_, _| {}).unwrap();
+    let path = out.join(LOG_FILE);
+    let bytes = std::fs::read(&path).unwrap();
+    (path, bytes)
+}
+
+#[test]
+fn a_flight_replays_bit_for_bit_and_a_changed_parameter_is_found() {
+    let (path, _) = flown("identical");
+    let log = read_log(&path).unwrap();
+    assert!(log.damage.is_empty());
+    assert_eq!(log.header.seed, 5);
+    let steps = log.records.iter().filter(|(_, r)| matches!(r, LogRecord::Step(_))).count();
+    assert_eq!(steps, 6000, "12 s at 500 Hz");
+    let s = replay(&log, &[]).unwrap();
+    assert_eq!((s.steps, s.compared, s.differing), (6000, 6000, 0));
+    assert!(s.first.is_none());
+    assert!(s.links > 300, "vision, flow, commands and heartbeats were fed: {}", s.links);
+
+    // A changed altitude gain alters the motor commands from the first step in the air.
+    let id = control_core::params::ParamId::from_name("gains.altitude.a_z1").unwrap();
+    let s = replay(&log, &[(id, 3.0)]).unwrap();
+    let d = s.first.expect("a difference");
+    assert!(s.differing > 100);
+    assert!(d.field.starts_with("control."), "{d}");
+    assert_ne!(d.logged, d.replayed);
+    assert!(d.time_us > 0 && d.offset > 0);
+    eprintln!("first difference: {d}");
+}
+
+#[test]
+fn damaged_logs_give_offsets_and_keep_the_intact_records() {
+    let (_, bytes) = flown("damaged");
+    let good = parse_log(&bytes).unwrap();
+    let n = good.records.len();
+    let mid = good.records[n / 2].0;
+
+    // Truncated in the middle of a record: every record before it is read, the tail is reported.
+    let cut = &bytes[..mid + 5];
+    let log = parse_log(cut).unwrap();
+    assert_eq!(log.records.len(), n / 2);
+    assert_eq!(log.damage.len(), 1);
+    assert_eq!(log.damage[0].offset, mid);
+    assert!(log.damage[0].what.contains("truncated"), "{}", log.damage[0]);
+
+    // A flipped byte inside one record: that record is reported at its offset, all others are read.
+    let mut flipped = bytes.clone();
+    flipped[mid + 3] ^= 0x5A;
+    let log = parse_log(&flipped).unwrap();
+    assert_eq!(log.records.len(), n - 1);
+    assert_eq!(log.damage.len(), 1, "{:?}", log.damage);
+    assert_eq!(log.damage[0].offset, mid);
+
+    // Another format version: a clear error naming the byte.
+    let mut v = bytes.clone();
+    v[6] = 9;
+    let e = format!("{:#}", parse_log(&v).unwrap_err());
+    assert!(e.contains("version 9") && e.contains("byte 6"), "{e}");
+    // Not a log at all.
+    let e = format!("{:#}", parse_log(b"PNG and other things").unwrap_err());
+    assert!(e.contains("not a flight log"), "{e}");
+
+    // An unknown record kind (a well-framed record whose variant index is past the last): reported, skipped.
+    let mut raw = vec![protocol::frame::WIRE_VERSION, 42, 1, 2, 3];
+    raw.extend(protocol::frame::crc16(&raw).to_le_bytes());
+    let mut enc = [0u8; 32];
+    let k = protocol::frame::cobs_encode(&raw, &mut enc).unwrap();
+    let mut unknown = bytes[..mid].to_vec();
+    unknown.extend_from_slice(&enc[..k]);
+    unknown.push(0);
+    unknown.extend_from_slice(&bytes[mid..]);
+    let log = parse_log(&unknown).unwrap();
+    assert_eq!(log.records.len(), n);
+    assert_eq!(log.damage.len(), 1);
+    assert_eq!(log.damage[0].offset, mid);
+    assert!(log.damage[0].what.contains("unknown record kind"), "{}", log.damage[0]);
+}
+
+#[test]
+fn the_reader_never_panics_on_mutated_logs() {
+    let (_, bytes) = flown("fuzz");
+    let body = parse_log(&bytes).unwrap().records[0].0;
+    let mut rng = SimRng::stream(11, "log-fuzz");
+    for case in 0..300 {
+        let mut b = bytes[..bytes.len().min(body + 20_000)].to_vec();
+        let edits = 1 + (rng.next_u64() % 8) as usize;
+        for _ in 0..edits {
+            let at = (rng.next_u64() as usize) % b.len();
+            match rng.next_u64() % 4 {
+                0 => b[at] ^= 1 << (rng.next_u64() % 8),
+                1 => b[at] = 0,
+                2 => b.truncate(at.max(1)),
+                _ => {
+                    let len = (rng.next_u64() % 64) as usize;
+                    b.splice(at..at, (0..len).map(|_| rng.next_u64() as u8));
+                }
+            }
+        }
+        // Header damage is an error; anything else reads, with the damage listed. Never a panic.
+        if let Ok(log) = parse_log(&b) {
+            assert!(log.records.len() + log.damage.len() > 0 || b.len() <= body, "case {case}");
+            for (off, _) in &log.records {
+                assert!(*off < b.len());
+            }
+        }
+    }
+}
