@@ -365,3 +365,33 @@ pub fn parse_fc(s: &str) -> Result<Option<PathBuf>> {
         _ => bail!("--fc: expected `sil` or `qemu:PATH/TO/ELF`, got `{s}`"),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_flight_computer_option_is_checked() {
+        assert_eq!(parse_fc("sil").unwrap(), None);
+        assert_eq!(parse_fc("qemu:fw.elf").unwrap(), Some(PathBuf::from("fw.elf")));
+        for bad in ["qemu:", "hitl", "QEMU:x"] {
+            assert!(format!("{:#}", parse_fc(bad).unwrap_err()).contains("expected `sil` or `qemu:"));
+        }
+    }
+
+    #[test]
+    fn a_missing_or_foreign_elf_is_refused_before_qemu_starts() {
+        let dir = std::env::temp_dir().join(format!("fil-elf-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let e = format!("{:#}", QemuFc::start(&QemuOptions::new(dir.join("none"))).err().unwrap());
+        assert!(e.contains("firmware ELF"), "{e}");
+        let text = dir.join("text");
+        std::fs::write(&text, b"#!/bin/sh\necho not firmware\n").unwrap();
+        let e = format!("{:#}", QemuFc::start(&QemuOptions::new(&text)).err().unwrap());
+        assert!(e.contains("is not an ELF file"), "{e}");
+        // This test binary: an ELF, but not for the MCU.
+        let me = std::env::current_exe().unwrap();
+        let e = format!("{:#}", QemuFc::start(&QemuOptions::new(me)).err().unwrap());
+        assert!(e.contains("is not an ARM ELF"), "{e}");
+    }
+}
