@@ -8,8 +8,7 @@
 //! step and the background work (pose solves) that follows it: nothing else executes meanwhile, so under
 //! QEMU's instruction counting their costs are exact.
 use crate::board::{self, Board};
-use crate::{downlinks, link};
-use control_core::CommandResult;
+use crate::link;
 use flight_core::fil::{FcToFil, FilToFc};
 use flight_core::{FlightStack, StepInput};
 use heapless::Vec;
@@ -20,8 +19,7 @@ use protocol::frame::{Decoder, WIRE_VERSION};
 pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
     let mut decoder = Decoder::new();
     let mut uplink: Vec<Uplink, 8> = Vec::new();
-    let mut last_command: Option<CommandResult> = None;
-    let mut steps: u32 = 0;
+    let mut downlinks = flight_core::telemetry::DownlinkSchedule::new();
     let mut stats = board::RunStats::default();
     let (mut background_cycles, mut background_solves) = (0u32, 0u8);
     link::send(board, &FcToFil::Hello { wire_version: WIRE_VERSION });
@@ -41,8 +39,7 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
                 uplink.clear();
                 stats.record_step(cost);
                 stats.mode = out.control.status.mode;
-                steps = steps.wrapping_add(1);
-                downlinks(&out, s.time_us, steps, cost, &mut last_command, |m| {
+                downlinks.after_step(&out.control, out.param_reply, s.time_us, cost, |m| {
                     link::send(board, &FcToFil::Link(m))
                 });
                 link::send(

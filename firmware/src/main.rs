@@ -7,7 +7,7 @@
 //! - every 2nd tick (500 Hz): the bytes the radio modem delivered (USART1, interrupt-driven queue) are decoded
 //!   into link messages, `flight_core::FlightStack::step` runs (on-board pose solve, estimation, mission,
 //!   failsafes, control laws, mixer), the rotor speeds go to the BL-Ctrl speed controllers (I2C1), and every
-//!   20th step telemetry goes back down the link with the step's measured cost.
+//!   20th step telemetry goes back down the link (`flight_core::telemetry`) with the step's measured cost.
 //!
 //! The `qemu` feature builds the QEMU `netduinoplus2` variant (see `board.rs`); the `fil` feature its
 //! firmware-in-the-loop form, where the simulator drives the same step over the UART (`fil.rs`). Scheduling
@@ -24,11 +24,9 @@ mod fil;
 mod link;
 mod panic;
 
-use control_core::CommandResult;
 use cortex_m_rt::entry;
 use defmt_rtt as _;
 use flight_core::{FlightConfig, FlightStack};
-use protocol::{Downlink, Telemetry};
 
 /// Control period in ticks (500 Hz).
 #[cfg(not(feature = "fil"))]
@@ -36,43 +34,6 @@ const STEP_EVERY: u32 = 2;
 /// Magnetometer period in ticks (50 Hz).
 #[cfg(not(feature = "fil"))]
 const MAG_EVERY: u32 = 20;
-/// Telemetry period in control steps (25 Hz).
-const TELEMETRY_EVERY: u32 = 20;
-
-/// The step's messages for the ground station: command acknowledgements, parameter replies and, every
-/// `TELEMETRY_EVERY` steps, telemetry with the step's measured cost.
-fn downlinks(
-    out: &flight_core::StepOutput,
-    time_us: u64,
-    steps: u32,
-    step_cost: u32,
-    last_command: &mut Option<CommandResult>,
-    mut send: impl FnMut(Downlink),
-) {
-    let st = out.control.status;
-    if st.last_command != *last_command {
-        *last_command = st.last_command;
-        if let Some(r) = st.last_command {
-            send(Downlink::CommandAck(r));
-        }
-    }
-    if let Some(r) = out.param_reply {
-        send(Downlink::Param(r));
-    }
-    if steps.is_multiple_of(TELEMETRY_EVERY) {
-        send(Downlink::Telemetry(Telemetry {
-            time_us,
-            mode: st.mode,
-            failsafe: st.failsafe,
-            estimate: out.control.estimate,
-            setpoint: out.control.setpoint,
-            motors_rad_s: out.control.motors_rad_s,
-            fix_age_s: st.fix_age_s,
-            step_cost,
-        }));
-    }
-}
-
 #[entry]
 fn main() -> ! {
     #[cfg(feature = "qemu")]
@@ -107,8 +68,7 @@ fn run(board: &mut board::Board, stack: &mut FlightStack, cfg: &FlightConfig) ->
     let mut decoder = protocol::frame::Decoder::new();
     let mut imu: Vec<ImuSample, 4> = Vec::new();
     let mut mag: Option<Vec3> = None;
-    let mut last_command: Option<CommandResult> = None;
-    let mut steps: u32 = 0;
+    let mut downlinks = flight_core::telemetry::DownlinkSchedule::new();
     let mut stats = board::RunStats::default();
     defmt::info!("flight firmware running");
 
@@ -149,8 +109,7 @@ fn run(board: &mut board::Board, stack: &mut FlightStack, cfg: &FlightConfig) ->
         if board.set_motors(cmd).is_err() {
             stats.motor_errors += 1;
         }
-        steps = steps.wrapping_add(1);
-        downlinks(&out, time_us, steps, step_cost, &mut last_command, |m| link::send(board, &m));
+        downlinks.after_step(&out.control, out.param_reply, time_us, step_cost, |m| link::send(board, &m));
         stats.mode = out.control.status.mode;
         stats.link = decoder.counters();
         // Background work: the pose solves of the frames this step queued, fused by the next step. It runs
@@ -160,6 +119,6 @@ fn run(board: &mut board::Board, stack: &mut FlightStack, cfg: &FlightConfig) ->
             stack.solve_pending();
             stats.record_background(board.cycles_since(t1));
         }
-        board.after_step(steps, &stats);
+        board.after_step(downlinks.steps(), &stats);
     }
 }

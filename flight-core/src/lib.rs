@@ -28,6 +28,7 @@
 
 pub mod fil;
 pub mod flow;
+pub mod telemetry;
 
 use control_core::estimator::{BodyVelocity, ImuSample, PositionFix};
 use control_core::params::{FlightParams, ParamError};

@@ -26,14 +26,28 @@ pub enum EncodeError {
     BufferFull,
 }
 
-/// CRC-16/CCITT-FALSE.
+/// CRC-16/CCITT-FALSE lookup table (one entry per leading byte), built at compile time: 512 bytes of flash.
+const CRC16_TABLE: [u16; 256] = {
+    let mut t = [0u16; 256];
+    let mut i = 0;
+    while i < 256 {
+        let mut crc = (i as u16) << 8;
+        let mut k = 0;
+        while k < 8 {
+            crc = if crc & 0x8000 != 0 { (crc << 1) ^ 0x1021 } else { crc << 1 };
+            k += 1;
+        }
+        t[i] = crc;
+        i += 1;
+    }
+    t
+};
+
+/// CRC-16/CCITT-FALSE (table driven, one lookup per byte).
 pub fn crc16(data: &[u8]) -> u16 {
     let mut crc: u16 = 0xFFFF;
     for &b in data {
-        crc ^= (b as u16) << 8;
-        for _ in 0..8 {
-            crc = if crc & 0x8000 != 0 { (crc << 1) ^ 0x1021 } else { crc << 1 };
-        }
+        crc = (crc << 8) ^ CRC16_TABLE[((crc >> 8) as u8 ^ b) as usize];
     }
     crc
 }
@@ -291,6 +305,24 @@ mod tests {
         assert!(!enc[..n].contains(&0));
         let back = cobs_decode_in_place(&mut enc[..n]).unwrap();
         assert_eq!(&enc[..back], &long[..]);
+    }
+
+    #[test]
+    fn table_crc_matches_the_bitwise_definition() {
+        let bitwise = |data: &[u8]| {
+            let mut crc: u16 = 0xFFFF;
+            for &b in data {
+                crc ^= (b as u16) << 8;
+                for _ in 0..8 {
+                    crc = if crc & 0x8000 != 0 { (crc << 1) ^ 0x1021 } else { crc << 1 };
+                }
+            }
+            crc
+        };
+        let data: Vec<u8> = (0..2000u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8).collect();
+        for n in [0, 1, 2, 9, 255, 256, 1999] {
+            assert_eq!(crc16(&data[..n]), bitwise(&data[..n]), "length {n}");
+        }
     }
 
     #[test]

@@ -6,26 +6,30 @@
 //! magic  = "WLQLOG" (6 bytes)
 //! version = LOG_FORMAT_VERSION, u16 little endian
 //! header_len = u32 little endian; header = that many bytes of UTF-8 JSON (LogHeader)
-//! frame  = protocol::frame (COBS, wire version, CRC-16) of one `LogRecord`
+//! frame  = protocol::frame layout (COBS, wire version, CRC-16) of one `LogRecord`, up to MAX_LOG_FRAME bytes
 //! ```
 //!
-//! The records are those of the firmware in the loop (`flight_core::fil`): the radio messages delivered before
-//! a step, the step's sensors, the step's report, plus the simulator's ground truth.
+//! The records are those of the firmware in the loop (`flight_core::fil`) and of the radio link: the radio
+//! messages delivered before a step, the step's sensors, the step's report, the downlink messages the vehicle
+//! sends after it (`flight_core::telemetry`), plus the camera frames the ground station measured and the
+//! simulator's ground truth.
 use anyhow::{Context, Result, bail};
 use control_core::estimator::ImuSample;
 use flight_core::StepReport;
 use flight_core::fil::SensorStep;
 use geometry::Vec3;
-use protocol::Uplink;
-use protocol::frame::{FrameError, MAX_FRAME, cobs_decode_in_place, decode_raw, encode};
+use protocol::frame::{FrameError, WIRE_VERSION, cobs_decode_in_place, cobs_encode, crc16, decode_raw};
+use protocol::{Downlink, Uplink};
 use serde::{Deserialize, Serialize};
-use std::io::Write;
+use std::io::{BufRead, Write};
 use std::path::Path;
 
 /// The file's first bytes.
 pub const LOG_MAGIC: &[u8; 6] = b"WLQLOG";
 /// Version of the log layout (header and record kinds).
-pub const LOG_FORMAT_VERSION: u16 = 1;
+pub const LOG_FORMAT_VERSION: u16 = 2;
+/// The longest record frame a reader accepts (a raw 4K RGB frame fits): longer ones are damage.
+pub const MAX_LOG_FRAME: usize = 64 << 20;
 /// File name `sim-host fly` writes in its output directory.
 pub const LOG_FILE: &str = "flight.log";
 
@@ -50,6 +54,197 @@ pub enum LogRecord {
         /// Roll, pitch, yaw (rad).
         attitude_rad: [f32; 3],
     },
+    /// A camera frame the ground station measured (the input of the `Link` record that carries its result).
+    Frame(CameraFrame),
+    /// A message the vehicle sent down the radio link after the step before it: telemetry, command
+    /// acknowledgement, parameter reply (the firmware's own records, `flight_core::telemetry`).
+    Downlink(Downlink),
+}
+
+impl LogRecord {
+    /// The record's kind, as named in docs/log-format.md.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            LogRecord::Link(_) => "link",
+            LogRecord::Step(_) => "step",
+            LogRecord::Report(_) => "report",
+            LogRecord::Truth { .. } => "truth",
+            LogRecord::Frame(_) => "frame",
+            LogRecord::Downlink(_) => "downlink",
+        }
+    }
+}
+
+/// The postcard variant index of [`LogRecord::Frame`].
+pub const FRAME_RECORD_INDEX: u8 = 4;
+
+/// Which camera took a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum CameraId {
+    /// The forward camera (the line on the wall; RGB).
+    Forward,
+    /// The downward camera (optical flow; grey).
+    Downward,
+}
+
+/// How a frame's pixels are stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum FrameEncoding {
+    /// Packed 8-bit pixels, row-major (RGB: R, G, B).
+    Raw,
+    /// A PNG file (lossless).
+    Png,
+}
+
+/// Whether and how `sim-host fly` keeps the camera frames in the log.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FramePolicy {
+    /// Only the vision results (the `Link` records): small logs, replay from vision results only.
+    Drop,
+    /// PNG (lossless, about a third of raw for the rendered frames).
+    Png,
+    /// Raw pixels (fastest to write and read, largest).
+    Raw,
+}
+
+/// One camera frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraFrame {
+    /// Which camera.
+    pub camera: CameraId,
+    /// The camera's frame counter (the `frame_seq` of the measurement made from it).
+    pub seq: u32,
+    /// Capture time (mid-exposure, us).
+    pub capture_time_us: u64,
+    /// Width (px).
+    pub width: u16,
+    /// Height (px).
+    pub height: u16,
+    /// Channels: 3 (RGB) or 1 (grey).
+    pub channels: u8,
+    /// How `data` stores the pixels.
+    pub encoding: FrameEncoding,
+    /// Downward camera: the camera rotation over the frame interval the ground station predicted and seeded
+    /// the flow with (camera frame, rad); zero for the forward camera. Part of the measurement's input, so that
+    /// a replay from frames recomputes it exactly.
+    pub rotation_hint_cam: [f32; 3],
+    /// The pixels (postcard: a varint length, then the bytes).
+    #[serde(with = "serde_bytes")]
+    pub data: Vec<u8>,
+}
+
+impl CameraFrame {
+    /// A forward (RGB) frame.
+    pub fn rgb(
+        seq: u32,
+        capture_time_us: u64,
+        img: &crate::imageio::RgbImage,
+        enc: FrameEncoding,
+    ) -> Result<Self> {
+        let data = match enc {
+            FrameEncoding::Raw => img.data.clone(),
+            FrameEncoding::Png => crate::imageio::png_of_rgb(img)?,
+        };
+        Ok(Self {
+            camera: CameraId::Forward,
+            seq,
+            capture_time_us,
+            width: img.width as u16,
+            height: img.height as u16,
+            channels: 3,
+            encoding: enc,
+            rotation_hint_cam: [0.0; 3],
+            data,
+        })
+    }
+
+    /// A grey frame of a camera.
+    pub fn gray(
+        camera: CameraId,
+        seq: u32,
+        capture_time_us: u64,
+        img: &crate::imageio::GrayImage,
+        rotation_hint_cam: [f32; 3],
+        enc: FrameEncoding,
+    ) -> Result<Self> {
+        let data = match enc {
+            FrameEncoding::Raw => img.data.clone(),
+            FrameEncoding::Png => crate::imageio::png_of_gray(img)?,
+        };
+        Ok(Self {
+            camera,
+            seq,
+            capture_time_us,
+            width: img.width as u16,
+            height: img.height as u16,
+            channels: 1,
+            encoding: enc,
+            rotation_hint_cam,
+            data,
+        })
+    }
+
+    /// The pixels as an RGB image (grey frames are expanded).
+    pub fn to_rgb(&self) -> Result<crate::imageio::RgbImage> {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let img = match (self.encoding, self.channels) {
+            (FrameEncoding::Png, _) => crate::imageio::rgb_from_png(&self.data)
+                .or_else(|_| crate::imageio::gray_from_png(&self.data).map(|g| gray_to_rgb(&g)))?,
+            (FrameEncoding::Raw, 3) => {
+                crate::imageio::RgbImage { width: w, height: h, data: self.data.clone() }
+            }
+            (FrameEncoding::Raw, 1) => {
+                gray_to_rgb(&crate::imageio::GrayImage { width: w, height: h, data: self.data.clone() })
+            }
+            (_, c) => bail!("frame {} has {c} channels (1 or 3 expected)", self.seq),
+        };
+        self.check(img.width, img.height, img.data.len() / 3)?;
+        Ok(img)
+    }
+
+    /// The pixels as a grey image (colour frames are converted with Rec. 601 luma weights).
+    pub fn to_gray(&self) -> Result<crate::imageio::GrayImage> {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let img = match (self.encoding, self.channels) {
+            (FrameEncoding::Png, _) => crate::imageio::gray_from_png(&self.data)?,
+            (FrameEncoding::Raw, 1) => {
+                crate::imageio::GrayImage { width: w, height: h, data: self.data.clone() }
+            }
+            (FrameEncoding::Raw, 3) => crate::imageio::GrayImage {
+                width: w,
+                height: h,
+                data: self
+                    .data
+                    .chunks_exact(3)
+                    .map(|p| ((299 * p[0] as u32 + 587 * p[1] as u32 + 114 * p[2] as u32 + 500) / 1000) as u8)
+                    .collect(),
+            },
+            (_, c) => bail!("frame {} has {c} channels (1 or 3 expected)", self.seq),
+        };
+        self.check(img.width, img.height, img.data.len())?;
+        Ok(img)
+    }
+
+    fn check(&self, w: usize, h: usize, pixels: usize) -> Result<()> {
+        if w != self.width as usize || h != self.height as usize || pixels != w * h {
+            bail!(
+                "frame {} of the {:?} camera: {}x{} declared, {w}x{h} with {pixels} pixels stored",
+                self.seq,
+                self.camera,
+                self.width,
+                self.height
+            );
+        }
+        Ok(())
+    }
+}
+
+fn gray_to_rgb(g: &crate::imageio::GrayImage) -> crate::imageio::RgbImage {
+    crate::imageio::RgbImage {
+        width: g.width,
+        height: g.height,
+        data: g.data.iter().flat_map(|&v| [v, v, v]).collect(),
+    }
 }
 
 /// The header: what flew and how.
@@ -92,6 +287,20 @@ pub fn schema_hash() -> String {
             velocity_m_s: [4.0, 5.0, 6.0],
             attitude_rad: [7.0, 8.0, 9.0],
         },
+        LogRecord::Frame(CameraFrame {
+            camera: CameraId::Downward,
+            seq: 11,
+            capture_time_us: 13,
+            width: 2,
+            height: 1,
+            channels: 1,
+            encoding: FrameEncoding::Raw,
+            rotation_hint_cam: [0.5, 0.25, 0.125],
+            data: vec![17, 19],
+        }),
+        LogRecord::Downlink(Downlink::CommandAck(control_core::CommandResult::Accepted(
+            control_core::Command::Arm,
+        ))),
     ];
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     let mut eat = |bytes: &[u8]| {
@@ -107,37 +316,77 @@ pub fn schema_hash() -> String {
     if let Ok(mut stack) = flight_core::FlightStack::new(flight_core::FlightConfig::paper()) {
         let out = stack.step(&flight_core::StepInput { time_us: 2000, imu: &[imu], mag: None, uplink: &[] });
         eat(&postcard::to_allocvec(&LogRecord::Report(out.report())).unwrap_or_default());
+        let c = &out.control;
+        let telemetry = protocol::Telemetry {
+            time_us: 2000,
+            mode: c.status.mode,
+            failsafe: c.status.failsafe,
+            estimate: c.estimate,
+            setpoint: c.setpoint,
+            motors_rad_s: c.motors_rad_s,
+            fix_age_s: c.status.fix_age_s,
+            step_cost: 5,
+        };
+        eat(&postcard::to_allocvec(&LogRecord::Downlink(Downlink::Telemetry(telemetry))).unwrap_or_default());
     }
     format!("{h:016x}")
+}
+
+/// The frame of one record: postcard payload, wire version and CRC-16, COBS-encoded, delimiter (the layout of
+/// `protocol::frame`, without its 512-byte limit; small records give the same bytes as `protocol::frame::encode`).
+pub fn record_frame(r: &LogRecord) -> Result<Vec<u8>> {
+    let mut body = Vec::with_capacity(64);
+    body.push(WIRE_VERSION);
+    let mut body = postcard::to_extend(r, body)?;
+    let crc = crc16(&body);
+    body.extend_from_slice(&crc.to_le_bytes());
+    let mut out = vec![0u8; body.len() + body.len() / 254 + 2];
+    let n = cobs_encode(&body, &mut out)
+        .map_err(|e| anyhow::anyhow!("cannot frame a {} record: {e:?}", r.kind()))?;
+    out.truncate(n);
+    out.push(0);
+    if out.len() > MAX_LOG_FRAME {
+        bail!("a {} record of {} bytes exceeds the {MAX_LOG_FRAME}-byte record limit", r.kind(), out.len());
+    }
+    Ok(out)
+}
+
+/// The bytes before the first record: magic, format version, header length, header JSON.
+pub fn header_bytes(header: &LogHeader) -> Result<Vec<u8>> {
+    let json = serde_json::to_vec(header)?;
+    let mut out = Vec::with_capacity(12 + json.len());
+    out.extend_from_slice(LOG_MAGIC);
+    out.extend_from_slice(&LOG_FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out.extend_from_slice(&json);
+    Ok(out)
 }
 
 /// Writes a log.
 pub struct LogWriter {
     out: std::io::BufWriter<std::fs::File>,
-    buf: Vec<u8>,
     /// Records written.
     pub records: u64,
+    /// Bytes written.
+    pub bytes: u64,
 }
 
 impl LogWriter {
     /// Creates `path` and writes the header.
     pub fn create(path: &Path, header: &LogHeader) -> Result<Self> {
         let f = std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
-        let mut out = std::io::BufWriter::new(f);
-        let json = serde_json::to_vec(header)?;
-        out.write_all(LOG_MAGIC)?;
-        out.write_all(&LOG_FORMAT_VERSION.to_le_bytes())?;
-        out.write_all(&(json.len() as u32).to_le_bytes())?;
-        out.write_all(&json)?;
-        Ok(Self { out, buf: vec![0; MAX_FRAME], records: 0 })
+        let mut out = std::io::BufWriter::with_capacity(1 << 20, f);
+        let head = header_bytes(header)?;
+        out.write_all(&head)?;
+        Ok(Self { out, records: 0, bytes: head.len() as u64 })
     }
 
     /// Appends one record.
     pub fn write(&mut self, r: &LogRecord) -> Result<()> {
-        let frame =
-            encode(r, &mut self.buf).map_err(|e| anyhow::anyhow!("record too large to frame: {e:?}"))?;
-        self.out.write_all(frame)?;
+        let frame = record_frame(r)?;
+        self.out.write_all(&frame)?;
         self.records += 1;
+        self.bytes += frame.len() as u64;
         Ok(())
     }
 
@@ -174,75 +423,205 @@ pub struct FlightLog {
     pub damage: Vec<LogDamage>,
 }
 
+/// Reads a log record by record, without holding it in memory (logs with frames run to gigabytes).
+pub struct LogReader<R: BufRead> {
+    input: R,
+    /// The header.
+    pub header: LogHeader,
+    offset: usize,
+    frame: Vec<u8>,
+    done: bool,
+    skip_frames: bool,
+    /// Camera frames skipped unread ([`LogReader::skip_frames`]).
+    pub frames_skipped: u64,
+}
+
+/// One item of a log: an intact record with its byte offset, or a damaged stretch.
+pub type LogItem = std::result::Result<(usize, LogRecord), LogDamage>;
+
+impl<R: BufRead> LogReader<R> {
+    /// Reads and checks the header. A stream that is not a log, of another format version or record schema,
+    /// or with an unreadable header is an error naming the byte.
+    pub fn new(mut input: R) -> Result<Self> {
+        let mut head = [0u8; 12];
+        let got = read_full(&mut input, &mut head)?;
+        if got < 6 || &head[..6] != LOG_MAGIC {
+            bail!("not a flight log: it does not start with \"WLQLOG\" (byte 0)");
+        }
+        if got < 12 {
+            bail!("truncated: the file ends at byte {got}, inside the 12-byte preamble");
+        }
+        let version = u16::from_le_bytes([head[6], head[7]]);
+        if version != LOG_FORMAT_VERSION {
+            bail!("log format version {version} at byte 6; this reader reads version {LOG_FORMAT_VERSION}");
+        }
+        let len = u32::from_le_bytes([head[8], head[9], head[10], head[11]]) as usize;
+        if len > 16 << 20 {
+            bail!("the header length at byte 8 says {len} bytes: not a plausible header (damaged?)");
+        }
+        let mut json = vec![0u8; len];
+        let got = read_full(&mut input, &mut json)?;
+        if got < len {
+            bail!(
+                "the header (bytes 12..{}) runs past the end of the file ({} bytes): truncated",
+                12 + len,
+                12 + got
+            );
+        }
+        let header: LogHeader = serde_json::from_slice(&json)
+            .map_err(|e| anyhow::anyhow!("the header at byte 12 is not readable: {e}"))?;
+        let ours = schema_hash();
+        if header.schema_hash != ours {
+            bail!(
+                "the log's record schema {} differs from this reader's {ours} (header at byte 12): written by {}",
+                header.schema_hash,
+                header.writer
+            );
+        }
+        Ok(Self {
+            input,
+            header,
+            offset: 12 + len,
+            frame: Vec::new(),
+            done: false,
+            skip_frames: false,
+            frames_skipped: 0,
+        })
+    }
+
+    /// Skips camera frame records without decoding or checking them (counted in `frames_skipped`): for
+    /// readers that only need the vision results, a log with frames then reads almost as fast as one without.
+    pub fn skip_frames(mut self, skip: bool) -> Self {
+        self.skip_frames = skip;
+        self
+    }
+
+    /// The byte offset of the next record.
+    pub fn offset(&self) -> usize {
+        self.offset
+    }
+}
+
+fn read_full<R: std::io::Read>(r: &mut R, buf: &mut [u8]) -> Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match r.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e.into()),
+        }
+    }
+    Ok(n)
+}
+
+impl<R: BufRead> Iterator for LogReader<R> {
+    type Item = LogItem;
+
+    fn next(&mut self) -> Option<LogItem> {
+        loop {
+            if self.done {
+                return None;
+            }
+            let start = self.offset;
+            self.frame.clear();
+            // Read up to the delimiter, but never more than the largest frame: a stretch without delimiters
+            // (damage) is skipped in bounded memory.
+            let mut oversized = false;
+            let mut delimited = false;
+            loop {
+                let buf = match self.input.fill_buf() {
+                    Ok(b) => b,
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                    Err(e) => {
+                        self.done = true;
+                        return Some(Err(LogDamage { offset: start, what: format!("read error: {e}") }));
+                    }
+                };
+                if buf.is_empty() {
+                    break;
+                }
+                let (take, found) = match buf.iter().position(|&b| b == 0) {
+                    Some(i) => (i + 1, true),
+                    None => (buf.len(), false),
+                };
+                if !oversized {
+                    let body = if found { &buf[..take - 1] } else { buf };
+                    if self.frame.len() + body.len() + 1 > MAX_LOG_FRAME {
+                        oversized = true;
+                        self.frame.clear();
+                    } else {
+                        self.frame.extend_from_slice(body);
+                    }
+                }
+                self.input.consume(take);
+                self.offset += take;
+                if found {
+                    delimited = true;
+                    break;
+                }
+            }
+            if !delimited {
+                self.done = true;
+                if self.offset == start {
+                    return None;
+                }
+                return Some(Err(LogDamage {
+                    offset: start,
+                    what: format!(
+                        "truncated: {} bytes without a frame delimiter at the end",
+                        self.offset - start
+                    ),
+                }));
+            }
+            if oversized {
+                return Some(Err(LogDamage {
+                    offset: start,
+                    what: format!("oversized frame ({} bytes, at most {MAX_LOG_FRAME})", self.offset - start),
+                }));
+            }
+            if self.frame.is_empty() {
+                continue;
+            }
+            // COBS keeps the body's leading non-zero bytes in place after the first code byte: a code of 3 or
+            // more means frame[1] is the wire version and frame[2] the record kind.
+            if self.skip_frames
+                && self.frame.len() > 3
+                && self.frame[0] >= 3
+                && self.frame[1] == WIRE_VERSION
+                && self.frame[2] == FRAME_RECORD_INDEX
+            {
+                self.frames_skipped += 1;
+                continue;
+            }
+            let result = match cobs_decode_in_place(&mut self.frame) {
+                None => Err(FrameError::Cobs),
+                Some(n) => decode_raw::<LogRecord>(&self.frame[..n]),
+            };
+            return Some(match result {
+                Ok(r) => Ok((start, r)),
+                Err(e) => Err(LogDamage { offset: start, what: frame_error_text(e) }),
+            });
+        }
+    }
+}
+
 /// Reads a log from bytes. A file that is not a log, of another format version or with an unreadable
 /// header is an error; damaged records are listed in `damage` and every intact record is still read. Never
 /// panics.
 pub fn parse_log(bytes: &[u8]) -> Result<FlightLog> {
-    if bytes.len() < 12 || &bytes[..6] != LOG_MAGIC {
-        bail!("not a flight log: it does not start with \"WLQLOG\" (byte 0)");
-    }
-    let version = u16::from_le_bytes([bytes[6], bytes[7]]);
-    if version != LOG_FORMAT_VERSION {
-        bail!("log format version {version} at byte 6; this reader reads version {LOG_FORMAT_VERSION}");
-    }
-    let len = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize;
-    let Some(json) = bytes.get(12..12 + len) else {
-        bail!(
-            "the header (bytes 12..{}) runs past the end of the file ({} bytes): truncated",
-            12 + len,
-            bytes.len()
-        );
-    };
-    let header: LogHeader = serde_json::from_slice(json)
-        .map_err(|e| anyhow::anyhow!("the header at byte 12 is not readable: {e}"))?;
-    let ours = schema_hash();
-    if header.schema_hash != ours {
-        bail!(
-            "the log's record schema {} differs from this reader's {ours} (header at byte 12): written by {}",
-            header.schema_hash,
-            header.writer
-        );
-    }
+    collect(LogReader::new(bytes)?)
+}
+
+fn collect<R: BufRead>(reader: LogReader<R>) -> Result<FlightLog> {
+    let header = reader.header.clone();
     let mut records = Vec::new();
     let mut damage = Vec::new();
-    let mut start = 12 + len;
-    let mut scratch = Vec::with_capacity(MAX_FRAME);
-    while start < bytes.len() {
-        let Some(rel) = bytes[start..].iter().position(|&b| b == 0) else {
-            damage.push(LogDamage {
-                offset: start,
-                what: format!(
-                    "truncated: {} bytes without a frame delimiter at the end",
-                    bytes.len() - start
-                ),
-            });
-            break;
-        };
-        let frame = &bytes[start..start + rel];
-        let next = start + rel + 1;
-        if frame.is_empty() {
-            start = next;
-            continue;
+    for item in reader {
+        match item {
+            Ok(r) => records.push(r),
+            Err(d) => damage.push(d),
         }
-        if frame.len() + 1 > MAX_FRAME {
-            damage.push(LogDamage {
-                offset: start,
-                what: format!("oversized frame ({} bytes)", frame.len() + 1),
-            });
-            start = next;
-            continue;
-        }
-        scratch.clear();
-        scratch.extend_from_slice(frame);
-        let result = match cobs_decode_in_place(&mut scratch) {
-            None => Err(FrameError::Cobs),
-            Some(n) => decode_raw::<LogRecord>(&scratch[..n]),
-        };
-        match result {
-            Ok(r) => records.push((start, r)),
-            Err(e) => damage.push(LogDamage { offset: start, what: frame_error_text(e) }),
-        }
-        start = next;
     }
     Ok(FlightLog { header, records, damage })
 }
@@ -258,8 +637,14 @@ fn frame_error_text(e: FrameError) -> String {
     }
 }
 
-/// Reads a log file.
+/// Opens a log file for reading record by record.
+pub fn open_log(path: &Path) -> Result<LogReader<std::io::BufReader<std::fs::File>>> {
+    let f = std::fs::File::open(path).with_context(|| format!("cannot read {}", path.display()))?;
+    LogReader::new(std::io::BufReader::with_capacity(1 << 20, f))
+        .with_context(|| format!("{}", path.display()))
+}
+
+/// Reads a whole log file into memory.
 pub fn read_log(path: &Path) -> Result<FlightLog> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    parse_log(&bytes).with_context(|| format!("{}", path.display()))
+    collect(open_log(path)?)
 }

@@ -29,6 +29,8 @@ pub struct FlyOptions {
     pub fc: FcChoice,
     /// Write the flight log (`flight.log`) for replay.
     pub log: bool,
+    /// Whether the log keeps the camera frames, and how.
+    pub frames: crate::flightlog::FramePolicy,
 }
 
 /// The outcome of a flight.
@@ -81,7 +83,7 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
                 FcChoice::Qemu(q) => format!("qemu:{}", q.elf.display()),
             },
         };
-        sil.record_log(crate::flightlog::LogWriter::create(&log_path, &header)?);
+        sil.record_log(crate::flightlog::LogWriter::create(&log_path, &header)?, opts.frames);
     }
     let t0 = Instant::now();
     let stats = sil.run(end, |t| progress(t, end));

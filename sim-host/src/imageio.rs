@@ -94,7 +94,13 @@ impl std::error::Error for ImageIoError {}
 
 fn decode(path: &Path) -> Result<(png::OutputInfo, Vec<u8>), ImageIoError> {
     let file = File::open(path).map_err(ImageIoError::Io)?;
-    let mut decoder = png::Decoder::new(BufReader::new(file));
+    decode_from(BufReader::new(file))
+}
+
+fn decode_from<R: std::io::BufRead + std::io::Seek>(
+    input: R,
+) -> Result<(png::OutputInfo, Vec<u8>), ImageIoError> {
+    let mut decoder = png::Decoder::new(input);
     decoder.set_transformations(png::Transformations::normalize_to_color8());
     let mut reader = decoder.read_info().map_err(|e| ImageIoError::NotPng(e.to_string()))?;
     let size =
@@ -108,7 +114,15 @@ fn decode(path: &Path) -> Result<(png::OutputInfo, Vec<u8>), ImageIoError> {
 /// Reads a PNG as RGB (8-bit; 16-bit is reduced, palettes expanded, alpha dropped). Grey images are
 /// rejected: the red line needs colour.
 pub fn read_png_rgb(path: &Path) -> Result<RgbImage, ImageIoError> {
-    let (info, buf) = decode(path)?;
+    to_rgb(decode(path)?)
+}
+
+/// Decodes PNG bytes as RGB, like [`read_png_rgb`].
+pub fn rgb_from_png(bytes: &[u8]) -> Result<RgbImage, ImageIoError> {
+    to_rgb(decode_from(std::io::Cursor::new(bytes))?)
+}
+
+fn to_rgb((info, buf): (png::OutputInfo, Vec<u8>)) -> Result<RgbImage, ImageIoError> {
     let (w, h) = (info.width as usize, info.height as usize);
     let data = match info.color_type {
         png::ColorType::Rgb => buf,
@@ -127,7 +141,15 @@ pub fn read_png_rgb(path: &Path) -> Result<RgbImage, ImageIoError> {
 
 /// Reads a PNG as 8-bit grey (colour images are converted with Rec. 601 luma weights).
 pub fn read_png_gray(path: &Path) -> Result<GrayImage, ImageIoError> {
-    let (info, buf) = decode(path)?;
+    to_gray(decode(path)?)
+}
+
+/// Decodes PNG bytes as 8-bit grey, like [`read_png_gray`].
+pub fn gray_from_png(bytes: &[u8]) -> Result<GrayImage, ImageIoError> {
+    to_gray(decode_from(std::io::Cursor::new(bytes))?)
+}
+
+fn to_gray((info, buf): (png::OutputInfo, Vec<u8>)) -> Result<GrayImage, ImageIoError> {
     let (w, h) = (info.width as usize, info.height as usize);
     let luma = |r: u8, g: u8, b: u8| ((299 * r as u32 + 587 * g as u32 + 114 * b as u32 + 500) / 1000) as u8;
     let data = match info.color_type {
@@ -145,7 +167,17 @@ pub fn read_png_gray(path: &Path) -> Result<GrayImage, ImageIoError> {
 
 fn write(path: &Path, w: usize, h: usize, color: png::ColorType, data: &[u8]) -> anyhow::Result<()> {
     let file = File::create(path).map_err(|e| anyhow::anyhow!("cannot create {}: {e}", path.display()))?;
-    let mut enc = png::Encoder::new(BufWriter::new(file), w as u32, h as u32);
+    encode_to(BufWriter::new(file), w, h, color, data)
+}
+
+fn encode_to<W: std::io::Write>(
+    out: W,
+    w: usize,
+    h: usize,
+    color: png::ColorType,
+    data: &[u8],
+) -> anyhow::Result<()> {
+    let mut enc = png::Encoder::new(out, w as u32, h as u32);
     enc.set_color(color);
     enc.set_depth(png::BitDepth::Eight);
     enc.set_compression(png::Compression::Fast);
@@ -153,6 +185,20 @@ fn write(path: &Path, w: usize, h: usize, color: png::ColorType, data: &[u8]) ->
     writer.write_image_data(data)?;
     writer.finish()?;
     Ok(())
+}
+
+/// An RGB image as PNG bytes (lossless).
+pub fn png_of_rgb(img: &RgbImage) -> anyhow::Result<Vec<u8>> {
+    let mut out = Vec::new();
+    encode_to(&mut out, img.width, img.height, png::ColorType::Rgb, &img.data)?;
+    Ok(out)
+}
+
+/// A grey image as PNG bytes (lossless).
+pub fn png_of_gray(img: &GrayImage) -> anyhow::Result<Vec<u8>> {
+    let mut out = Vec::new();
+    encode_to(&mut out, img.width, img.height, png::ColorType::Grayscale, &img.data)?;
+    Ok(out)
 }
 
 /// Writes an RGB PNG.

@@ -6,10 +6,12 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use geometry::frames::Attitude;
 use geometry::{Vec3, deg};
+use indicatif::{ProgressBar, ProgressStyle};
 use sim_host::Scenario;
 use sim_host::downward::{GroundFlow, flow_json, no_flow_json};
 use sim_host::imageio::{GrayImage, read_png_gray, read_png_rgb, write_png_gray, write_png_rgb};
 use sim_host::render::{DownPose, DownRenderer, ForwardRenderer};
+use sim_host::replay::{ReplayOptions, VisionSource, replay_stream};
 use sim_host::vision::{GroundVision, PoseMethod, draw_overlay, no_target_json, pose_json};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -46,12 +48,30 @@ enum Command {
 
 #[derive(Args, Debug)]
 struct ReplayArgs {
-    /// The flight log (`flight.log` written by `sim-host fly`).
+    /// The flight log (`flight.log` written by `sim-host fly`, or `sim-host import`).
     log: PathBuf,
+    /// Re-run the ground station's vision (vision-core's line detector and optical flow) on the logged camera
+    /// frames and compare each measurement with the logged one, instead of feeding the logged measurements.
+    #[arg(long)]
+    from_frames: bool,
+    /// Write the replayed flight (inputs, recomputed measurements, reports, downlinks) as a new log, e.g. to
+    /// export the estimates of an imported dataset.
+    #[arg(long, value_name = "LOG")]
+    out: Option<PathBuf>,
     /// Change a parameter before the first step, e.g. `--set trajectory.speed_m_s=0.3` (repeatable); the replay
     /// then reports the differences instead of failing on them.
     #[arg(long = "set", value_name = "NAME=VALUE")]
     set: Vec<String>,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum FramesArg {
+    /// Lossless PNG.
+    Png,
+    /// Raw 8-bit pixels.
+    Raw,
+    /// No frames, only the vision results.
+    None,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -82,9 +102,13 @@ struct FlyArgs {
     /// Skip the PNG plots.
     #[arg(long)]
     no_plots: bool,
-    /// Do not write the flight log (`flight.log`, for `sim-host replay`).
+    /// Do not write the flight log (`flight.log`, for `sim-host replay` and `sim-host export`).
     #[arg(long)]
     no_log: bool,
+    /// Camera frames in the flight log: `png` (lossless), `raw` pixels, or `none` (only the vision results;
+    /// a far smaller log, replayable from vision results only). Only rendered cameras have frames.
+    #[arg(long, value_enum, default_value = "png")]
+    frames: FramesArg,
     /// The flight computer: `sil` (the flight code in this process) or `qemu:PATH` (the firmware ELF built with
     /// `--features fil`, run in qemu-system-arm's netduinoplus2 model, in lockstep over its UART).
     #[arg(long, default_value = "sil", value_name = "sil|qemu:ELF")]
@@ -450,7 +474,6 @@ fn vision_flow(a: &FlowArgs) -> Result<ExitCode> {
 }
 
 fn fly(a: &FlyArgs) -> Result<ExitCode> {
-    use indicatif::{ProgressBar, ProgressStyle};
     use sim_host::fly::{FlyOptions, fly};
     use sim_host::sil::CameraMode;
     let scenario = Scenario::load(&a.scenario)?;
@@ -476,6 +499,11 @@ fn fly(a: &FlyArgs) -> Result<ExitCode> {
         plots: !a.no_plots,
         fc,
         log: !a.no_log,
+        frames: match a.frames {
+            FramesArg::Png => sim_host::flightlog::FramePolicy::Png,
+            FramesArg::Raw => sim_host::flightlog::FramePolicy::Raw,
+            FramesArg::None => sim_host::flightlog::FramePolicy::Drop,
+        },
     };
     let bar = ProgressBar::new(1000);
     bar.set_style(
@@ -584,30 +612,81 @@ fn replay(a: &ReplayArgs) -> Result<ExitCode> {
             value.trim().parse().map_err(|_| anyhow::anyhow!("--set {kv}: `{value}` is not a number"))?;
         overrides.push((id, v));
     }
-    let log = sim_host::flightlog::read_log(&a.log)?;
+    // Replaying from vision results without writing a new log never looks at the frames: skip them unread.
+    let reader = sim_host::flightlog::open_log(&a.log)?.skip_frames(!a.from_frames && a.out.is_none());
+    let header = reader.header.clone();
+    let file_len = std::fs::metadata(&a.log).map(|m| m.len()).unwrap_or(0);
+    let opts = ReplayOptions {
+        overrides: overrides.clone(),
+        vision: if a.from_frames { VisionSource::Frames } else { VisionSource::Logged },
+    };
+    let mut writer = match &a.out {
+        Some(p) => {
+            let mut h = header.clone();
+            h.writer = format!("sim-host {} replay of {}", env!("CARGO_PKG_VERSION"), a.log.display());
+            Some(sim_host::flightlog::LogWriter::create(p, &h)?)
+        }
+        None => None,
+    };
+    let bar = ProgressBar::new(file_len.max(1));
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} replaying [{bar:40}] {bytes}/{total_bytes} ({elapsed} elapsed)",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
     let t0 = std::time::Instant::now();
-    let s = sim_host::replay::replay(&log, &overrides)?;
+    let mut count = 0u64;
+    let mut items = ProgressItems { inner: reader, bar: &bar, count: &mut count };
+    let s = replay_stream(&header, &mut items, &opts, writer.as_mut())?;
+    let skipped = items.inner.frames_skipped;
+    bar.finish_and_clear();
     let wall = t0.elapsed().as_secs_f64();
+    if let Some(w) = writer {
+        w.finish()?;
+    }
     eprintln!(
-        "{}: {} steps ({:.1} s of flight) replayed in {:.2} s ({} real time); {} reports compared, {} differ",
+        "{}: {} steps ({:.1} s of flight) replayed in {:.2} s ({} real time){}; {} reports compared, {} differ; \
+         {} downlinks compared, {} differ",
         a.log.display(),
         s.steps,
         s.sim_time_s,
         wall,
         rtf_text(s.sim_time_s / wall.max(1e-9)),
+        if a.from_frames { " from frames" } else { "" },
         s.compared,
-        s.differing
+        s.differing,
+        s.downlinks_compared,
+        s.downlinks_differing,
     );
-    for d in &log.damage {
+    if skipped > 0 {
+        eprintln!(
+            "{skipped} camera frames skipped (replayed from the logged vision results; --from-frames uses them)"
+        );
+    }
+    if a.from_frames {
+        eprintln!(
+            "{} frames; {} measurements recomputed from frames, {} differ, {} without their frame",
+            s.frames, s.measurements_compared, s.measurements_differing, s.measurements_without_frame
+        );
+    }
+    if let Some(p) = &a.out {
+        eprintln!("wrote {}", p.display());
+    }
+    for d in &s.damage {
         eprintln!("damaged record {d}");
     }
+    if s.compared == 0 && s.steps > 0 {
+        eprintln!("the log holds no reports (an imported dataset?): nothing to compare");
+    }
     match (&s.first, overrides.is_empty()) {
-        (None, _) if log.damage.is_empty() => {
+        (None, _) if s.damage.is_empty() => {
             eprintln!("identical: every output matches the log bit for bit");
             Ok(ExitCode::SUCCESS)
         }
         (None, _) => {
-            eprintln!("the intact records match, but {} were damaged", log.damage.len());
+            eprintln!("the intact records match, but {} were damaged", s.damage.len());
             Ok(ExitCode::from(1))
         }
         (Some(d), true) => {
@@ -618,6 +697,25 @@ fn replay(a: &ReplayArgs) -> Result<ExitCode> {
             eprintln!("with the changed parameters, first difference: {d}");
             Ok(ExitCode::SUCCESS)
         }
+    }
+}
+
+/// Log records with a progress bar on their byte offsets.
+struct ProgressItems<'a, R: std::io::BufRead> {
+    inner: sim_host::flightlog::LogReader<R>,
+    bar: &'a ProgressBar,
+    count: &'a mut u64,
+}
+
+impl<R: std::io::BufRead> Iterator for ProgressItems<'_, R> {
+    type Item = sim_host::flightlog::LogItem;
+    fn next(&mut self) -> Option<Self::Item> {
+        let item = self.inner.next();
+        *self.count += 1;
+        if self.count.is_multiple_of(4096) {
+            self.bar.set_position(self.inner.offset() as u64);
+        }
+        item
     }
 }
 

@@ -3,25 +3,64 @@
 //! The stack is built from the scenario in the log's header (its parameters), optionally with parameters
 //! changed; it then steps on each `Step` record with the `Link` records before it, runs the background work
 //! after each step as every flight computer does, and compares the report with the log's next `Report`
-//! record through their encoded bytes (so a NaN or a signed zero counts). The first difference is named by
-//! record, byte offset, time and field path, with both values.
-use crate::flightlog::{FlightLog, LogRecord};
+//! record and the downlink messages with the log's `Downlink` records, through their encoded bytes (so a NaN
+//! or a signed zero counts). The first difference is named by record, byte offset, time and field path, with
+//! both values.
+//!
+//! From frames ([`VisionSource::Frames`]), the ground station's vision runs again on the logged camera frames
+//! (`vision-core`'s line detector on the forward frames, its optical flow on the downward frames, with the
+//! logged rotation hint): each measurement is compared with the logged one and the recomputed one is what the
+//! stack receives, at the logged delivery time.
+use crate::downward::GroundFlow;
+use crate::flightlog::{CameraId, LogDamage, LogHeader, LogItem, LogRecord, LogWriter};
 use crate::scenario::Scenario;
+use crate::vision::GroundVision;
 use anyhow::{Result, bail};
 use control_core::ParamOutcome;
 use control_core::params::ParamId;
+use flight_core::telemetry::DownlinkSchedule;
 use flight_core::{FlightStack, StepInput, StepReport};
-use protocol::Uplink;
+use protocol::{Downlink, Uplink};
+use serde::Serialize;
 use serde_json::Value;
+use std::collections::{HashMap, VecDeque};
+use vision_core::LineObservation;
+use vision_core::flow::{FlowStats, NoFlowReason};
+
+/// Where the stack's vision measurements come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VisionSource {
+    /// The logged measurements (`Link` records): fast.
+    Logged,
+    /// Recomputed from the logged camera frames by `vision-core`.
+    Frames,
+}
+
+/// Replay options.
+#[derive(Clone, Debug)]
+pub struct ReplayOptions {
+    /// Parameter changes before the first step.
+    pub overrides: Vec<(ParamId, f32)>,
+    /// Where vision measurements come from.
+    pub vision: VisionSource,
+}
+
+impl Default for ReplayOptions {
+    fn default() -> Self {
+        Self { overrides: Vec::new(), vision: VisionSource::Logged }
+    }
+}
 
 /// The first output that differs.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Difference {
-    /// Index of the `Report` record in the log.
+    /// Index of the record in the log (counting intact records).
     pub record: usize,
     /// Its byte offset in the file.
     pub offset: usize,
-    /// Time of its step (us).
+    /// Its kind (`report`, `downlink`, `vision` or `flow` for a measurement recomputed from a frame).
+    pub kind: &'static str,
+    /// Time of its step or frame (us).
     pub time_us: u64,
     /// Path of the first differing field (`control.motors_rad_s[2]`).
     pub field: String,
@@ -35,8 +74,9 @@ impl std::fmt::Display for Difference {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "record {} (byte {}), step at t = {:.3} s: {} logged {} replayed {}",
+            "record {} ({}, byte {}), t = {:.3} s: {} logged {} replayed {}",
             self.record,
+            self.kind,
             self.offset,
             self.time_us as f64 * 1e-6,
             self.field,
@@ -47,7 +87,7 @@ impl std::fmt::Display for Difference {
 }
 
 /// What a replay found.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct ReplaySummary {
     /// Steps re-run.
     pub steps: u64,
@@ -57,34 +97,123 @@ pub struct ReplaySummary {
     pub compared: u64,
     /// Reports that differ.
     pub differing: u64,
+    /// Downlink messages compared.
+    pub downlinks_compared: u64,
+    /// Downlink messages that differ (or are missing or extra).
+    pub downlinks_differing: u64,
+    /// Camera frames read.
+    pub frames: u64,
+    /// Measurements recomputed from frames and compared with the logged ones.
+    pub measurements_compared: u64,
+    /// Of those, the ones that differ.
+    pub measurements_differing: u64,
+    /// Logged measurements without their frame (fed as logged).
+    pub measurements_without_frame: u64,
     /// The first difference.
     pub first: Option<Difference>,
     /// Simulated time covered (s).
     pub sim_time_s: f64,
+    /// Damaged stretches of the log (skipped).
+    pub damage: Vec<LogDamage>,
 }
 
-/// Re-runs the flight stack over a log. `overrides` change parameters before the first step.
-pub fn replay(log: &FlightLog, overrides: &[(ParamId, f32)]) -> Result<ReplaySummary> {
-    let scenario = Scenario::from_toml(&log.header.scenario_toml)?;
+impl ReplaySummary {
+    /// Whether every compared output matched bit for bit and nothing was damaged.
+    pub fn identical(&self) -> bool {
+        self.first.is_none() && self.damage.is_empty()
+    }
+}
+
+/// The ground station's vision, re-run on frames.
+struct FrameVision {
+    forward: GroundVision,
+    flow: GroundFlow,
+    vision: HashMap<u32, Option<LineObservation>>,
+    flow_results: HashMap<u32, Option<Result<FlowStats, NoFlowReason>>>,
+}
+
+/// Re-runs the flight stack over a log held in memory.
+pub fn replay(log: &crate::flightlog::FlightLog, opts: &ReplayOptions) -> Result<ReplaySummary> {
+    let mut s = replay_stream(&log.header, log.records.iter().cloned().map(Ok), opts, None)?;
+    s.damage.extend(log.damage.iter().cloned());
+    Ok(s)
+}
+
+/// Re-runs the flight stack over a log's records as they are read; writes the replayed log to `out` if given
+/// (the same header and inputs, the replayed measurements, reports and downlinks).
+pub fn replay_stream(
+    header: &LogHeader,
+    records: impl Iterator<Item = LogItem>,
+    opts: &ReplayOptions,
+    mut out: Option<&mut LogWriter>,
+) -> Result<ReplaySummary> {
+    let scenario = Scenario::from_toml(&header.scenario_toml)?;
     let mut stack = FlightStack::new(scenario.flight_config()).map_err(|e| anyhow::anyhow!("{e}"))?;
-    for &(id, value) in overrides {
+    for &(id, value) in &opts.overrides {
         let r = stack.set_param(id, value);
         if r.outcome != ParamOutcome::Ok {
             bail!("parameter {} = {value} refused: {:?}", id.name(), r.outcome);
         }
     }
+    let mut frames = match opts.vision {
+        VisionSource::Frames => Some(FrameVision {
+            forward: GroundVision::new(&scenario),
+            flow: GroundFlow::new(&scenario),
+            vision: HashMap::new(),
+            flow_results: HashMap::new(),
+        }),
+        VisionSource::Logged => None,
+    };
+    let mut schedule = DownlinkSchedule::new();
     let mut uplink: Vec<Uplink> = Vec::new();
     let mut last: Option<(u64, StepReport)> = None;
-    let mut s = ReplaySummary { steps: 0, links: 0, compared: 0, differing: 0, first: None, sim_time_s: 0.0 };
+    let mut downlinks: VecDeque<Downlink> = VecDeque::new();
+    let mut step_time = 0u64;
+    let mut s = ReplaySummary::default();
     let mut first_time = None;
-    for (index, (offset, rec)) in log.records.iter().enumerate() {
+    let writing = out.is_some();
+    let mut write = |r: &LogRecord| -> Result<()> {
+        match out.as_deref_mut() {
+            Some(w) => w.write(r),
+            None => Ok(()),
+        }
+    };
+    for (index, item) in records.enumerate() {
+        let (offset, rec) = match item {
+            Ok(r) => r,
+            Err(d) => {
+                s.damage.push(d);
+                continue;
+            }
+        };
         match rec {
             LogRecord::Link(m) => {
-                uplink.push(*m);
+                let m = match frames.as_mut() {
+                    Some(fv) => recompute(fv, m, index, offset, &mut s),
+                    None => m,
+                };
+                write(&LogRecord::Link(m))?;
+                uplink.push(m);
                 s.links += 1;
             }
             LogRecord::Step(step) => {
-                let out = stack.step(&StepInput {
+                // Downlinks of the previous step the log did not hold.
+                if !downlinks.is_empty() {
+                    s.downlinks_differing += downlinks.len() as u64;
+                    note(
+                        &mut s.first,
+                        index,
+                        offset,
+                        "downlink",
+                        step_time,
+                        "(missing from the log)",
+                        &"none",
+                        &downlinks[0],
+                    );
+                    downlinks.clear();
+                }
+                write(&LogRecord::Step(step.clone()))?;
+                let o = stack.step(&StepInput {
                     time_us: step.time_us,
                     imu: &step.imu,
                     mag: step.mag,
@@ -93,44 +222,154 @@ pub fn replay(log: &FlightLog, overrides: &[(ParamId, f32)]) -> Result<ReplaySum
                 stack.solve_pending();
                 uplink.clear();
                 s.steps += 1;
+                step_time = step.time_us;
                 first_time.get_or_insert(step.time_us);
                 s.sim_time_s = (step.time_us - first_time.unwrap_or(step.time_us)) as f64 * 1e-6;
-                last = Some((step.time_us, out.report()));
+                let report = o.report();
+                schedule.after_step(&o.control, o.param_reply, step.time_us, 0, |d| downlinks.push_back(d));
+                last = Some((step.time_us, report));
+                // A log without reports (an imported dataset) gets the replayed ones.
+                if writing {
+                    write(&LogRecord::Report(report))?;
+                    for d in &downlinks {
+                        write(&LogRecord::Downlink(*d))?;
+                    }
+                }
             }
             LogRecord::Report(logged) => {
                 let Some((time_us, replayed)) = last.take() else {
                     bail!("record {index} (byte {offset}): a report without a step before it");
                 };
                 s.compared += 1;
-                if postcard::to_allocvec(logged)? != postcard::to_allocvec(&replayed)? {
+                if postcard::to_allocvec(&logged)? != postcard::to_allocvec(&replayed)? {
                     s.differing += 1;
-                    if s.first.is_none() {
-                        let (field, a, b) = first_field_difference(logged, &replayed);
-                        s.first = Some(Difference {
-                            record: index,
-                            offset: *offset,
-                            time_us,
-                            field,
-                            logged: a,
-                            replayed: b,
-                        });
-                    }
+                    note(&mut s.first, index, offset, "report", time_us, "", &logged, &replayed);
                 }
             }
-            LogRecord::Truth { .. } => {}
+            LogRecord::Downlink(logged) => {
+                s.downlinks_compared += 1;
+                let Some(mut replayed) = downlinks.pop_front() else {
+                    s.downlinks_differing += 1;
+                    note(
+                        &mut s.first,
+                        index,
+                        offset,
+                        "downlink",
+                        step_time,
+                        "(not sent in the replay)",
+                        &logged,
+                        &"none",
+                    );
+                    continue;
+                };
+                // The step cost is the flight computer's measurement, not an output of the code.
+                if let (Downlink::Telemetry(l), Downlink::Telemetry(r)) = (&logged, &mut replayed) {
+                    r.step_cost = l.step_cost;
+                }
+                if postcard::to_allocvec(&logged)? != postcard::to_allocvec(&replayed)? {
+                    s.downlinks_differing += 1;
+                    note(&mut s.first, index, offset, "downlink", step_time, "", &logged, &replayed);
+                }
+            }
+            LogRecord::Frame(f) => {
+                s.frames += 1;
+                if let Some(fv) = frames.as_mut() {
+                    match f.camera {
+                        CameraId::Forward => {
+                            let img = f
+                                .to_rgb()
+                                .map_err(|e| anyhow::anyhow!("record {index} (byte {offset}): {e:#}"))?;
+                            fv.vision.insert(f.seq, fv.forward.detect(&img).ok());
+                        }
+                        CameraId::Downward => {
+                            let img = f
+                                .to_gray()
+                                .map_err(|e| anyhow::anyhow!("record {index} (byte {offset}): {e:#}"))?;
+                            let hint = geometry::Vec3::new(
+                                f.rotation_hint_cam[0],
+                                f.rotation_hint_cam[1],
+                                f.rotation_hint_cam[2],
+                            );
+                            fv.flow_results.insert(f.seq, fv.flow.add(&img, hint));
+                        }
+                    }
+                }
+                write(&LogRecord::Frame(f))?;
+            }
+            r @ LogRecord::Truth { .. } => write(&r)?,
         }
+    }
+    if opts.vision == VisionSource::Frames && s.frames == 0 && s.links > 0 {
+        bail!(
+            "the log holds no camera frames (flown with --camera analytic or --frames none): replay from the \
+             logged vision results instead"
+        );
     }
     Ok(s)
 }
 
-/// The path and both values of the first field where two reports differ.
-fn first_field_difference(a: &StepReport, b: &StepReport) -> (String, String, String) {
-    let (va, vb) =
-        (serde_json::to_value(a).unwrap_or(Value::Null), serde_json::to_value(b).unwrap_or(Value::Null));
-    walk(&va, &vb, String::new()).unwrap_or_else(|| {
+/// A logged measurement replaced by the one recomputed from its frame, compared on the way.
+fn recompute(fv: &mut FrameVision, m: Uplink, index: usize, offset: usize, s: &mut ReplaySummary) -> Uplink {
+    match m {
+        Uplink::Vision(mut v) => match fv.vision.remove(&v.frame_seq) {
+            Some(obs) => {
+                s.measurements_compared += 1;
+                if postcard::to_allocvec(&obs).ok() != postcard::to_allocvec(&v.observation).ok() {
+                    s.measurements_differing += 1;
+                    let t = v.capture_time_us;
+                    note(&mut s.first, index, offset, "vision", t, "observation", &v.observation, &obs);
+                }
+                v.observation = obs;
+                Uplink::Vision(v)
+            }
+            None => {
+                s.measurements_without_frame += 1;
+                m
+            }
+        },
+        Uplink::Flow(mut f) => match fv.flow_results.remove(&f.frame_seq) {
+            Some(Some(result)) => {
+                s.measurements_compared += 1;
+                if postcard::to_allocvec(&result).ok() != postcard::to_allocvec(&f.result).ok() {
+                    s.measurements_differing += 1;
+                    note(&mut s.first, index, offset, "flow", f.t_next_us, "result", &f.result, &result);
+                }
+                f.result = result;
+                Uplink::Flow(f)
+            }
+            Some(None) | None => {
+                s.measurements_without_frame += 1;
+                m
+            }
+        },
+        other => other,
+    }
+}
+
+/// Records the first difference (later ones only count).
+#[allow(clippy::too_many_arguments)]
+fn note<A: Serialize, B: Serialize>(
+    first: &mut Option<Difference>,
+    record: usize,
+    offset: usize,
+    kind: &'static str,
+    time_us: u64,
+    prefix: &str,
+    logged: &A,
+    replayed: &B,
+) {
+    if first.is_some() {
+        return;
+    }
+    let (va, vb) = (
+        serde_json::to_value(logged).unwrap_or(Value::Null),
+        serde_json::to_value(replayed).unwrap_or(Value::Null),
+    );
+    let (field, a, b) = walk(&va, &vb, prefix.to_string()).unwrap_or_else(|| {
         // Equal as JSON numbers but not as bits (e.g. -0.0 and 0.0, or NaN payloads).
-        ("(bit pattern of a float)".into(), format!("{a:?}"), format!("{b:?}"))
-    })
+        (format!("{prefix} (bit pattern of a float)"), va.to_string(), vb.to_string())
+    });
+    *first = Some(Difference { record, offset, kind, time_us, field, logged: a, replayed: b });
 }
 
 fn walk(a: &Value, b: &Value, path: String) -> Option<(String, String, String)> {

@@ -213,6 +213,8 @@ pub struct Sil {
     fc: Option<Fc>,
     motor_log: Option<Vec<[u32; 4]>>,
     flight_log: Option<crate::flightlog::LogWriter>,
+    log_frames: crate::flightlog::FramePolicy,
+    log_downlinks: flight_core::telemetry::DownlinkSchedule,
     log_error: Option<String>,
     cost_sum: f64,
     background_sum: f64,
@@ -347,6 +349,8 @@ impl Sil {
             fc: Some(fc),
             motor_log: None,
             flight_log: None,
+            log_frames: crate::flightlog::FramePolicy::Drop,
+            log_downlinks: flight_core::telemetry::DownlinkSchedule::new(),
             log_error: None,
             cost_sum: 0.0,
             background_sum: 0.0,
@@ -447,7 +451,17 @@ impl Sil {
                         let mut s = self.seed ^ 0xF0F0_0000_0000_0000 ^ self.frame_index;
                         settings.seed = splitmix64(&mut s);
                         let img = r.render(&r_wc, center, &settings);
-                        self.vision.detect(&img).ok()
+                        let observation = self.vision.detect(&img).ok();
+                        if let Some(enc) = self.frame_encoding() {
+                            let f = crate::flightlog::CameraFrame::rgb(
+                                self.frame_index as u32,
+                                self.t_us,
+                                &img,
+                                enc,
+                            );
+                            self.log_frame(f);
+                        }
+                        observation
                     }
                     None => None,
                 }
@@ -525,7 +539,19 @@ impl Sil {
                 let mut s = self.seed ^ 0x0D0D_0000_0000_0000 ^ self.down_index;
                 settings.seed = splitmix64(&mut s);
                 let img = r.render(&pose, &settings);
-                fl.add(&img, predicted)
+                let result = fl.add(&img, predicted);
+                if let Some(enc) = self.frame_encoding() {
+                    let f = crate::flightlog::CameraFrame::gray(
+                        crate::flightlog::CameraId::Downward,
+                        self.down_index as u32,
+                        self.t_us,
+                        &img,
+                        predicted.to_array(),
+                        enc,
+                    );
+                    self.log_frame(f);
+                }
+                result
             }
             (None, Some(fl)) => self.prev_down.map(|(_, prev, _, _)| {
                 analytic_flow(fl.camera(), fl.params(), &prev, &cam_pose, 0.08, &mut self.down_rng, predicted)
@@ -630,12 +656,18 @@ impl Sil {
         let step_mag = self.pending_mag.take();
         let input =
             StepInput { time_us: self.t_us, imu: &self.pending_imu, mag: step_mag, uplink: &delivered };
+        let mut downlinks: Vec<protocol::Downlink> = Vec::new();
         let out = match self.fc.as_mut() {
             Some(Fc::Sil(stack)) => {
-                let out = stack.step(&input).report();
+                let o = stack.step(&input);
                 // Background work, in the firmware's order: after the step, fused by the next one.
                 stack.solve_pending();
-                out
+                if self.flight_log.is_some() {
+                    // What the vehicle would send down the radio (the firmware's own schedule).
+                    self.log_downlinks
+                        .after_step(&o.control, o.param_reply, self.t_us, 0, |d| downlinks.push(d));
+                }
+                o.report()
             }
             Some(Fc::Qemu(q)) => match q.step(&input) {
                 Ok(step) => {
@@ -662,6 +694,7 @@ impl Sil {
                     let flown = t_s.max(1e-6) * crate::fil::CORE_INSTRUCTIONS_PER_S;
                     cost.step_cpu_share = self.cost_sum / flown;
                     cost.background_cpu_share = self.background_sum / flown;
+                    downlinks = step.downlink;
                     step.report
                 }
                 Err(e) => {
@@ -681,6 +714,7 @@ impl Sil {
             let mut records: Vec<LogRecord> = delivered.iter().map(|m| LogRecord::Link(*m)).collect();
             records.push(LogRecord::Step(step));
             records.push(LogRecord::Report(out));
+            records.extend(downlinks.iter().map(|d| LogRecord::Downlink(*d)));
             self.write_log(&records);
         }
         self.pending_imu.clear();
@@ -833,10 +867,32 @@ impl Sil {
         self.finish()
     }
 
-    /// Records the flight into a log (`crate::flightlog`): every step's radio messages, sensors and report,
-    /// and the ground truth at the record rate.
-    pub fn record_log(&mut self, w: crate::flightlog::LogWriter) {
+    /// Records the flight into a log (`crate::flightlog`): every step's radio messages, sensors, report and
+    /// downlink messages, the camera frames as `frames` says (rendered cameras only), and the ground truth at
+    /// the record rate.
+    pub fn record_log(&mut self, w: crate::flightlog::LogWriter, frames: crate::flightlog::FramePolicy) {
         self.flight_log = Some(w);
+        self.log_frames = frames;
+    }
+
+    /// The frame encoding to log with, if frames are logged.
+    fn frame_encoding(&self) -> Option<crate::flightlog::FrameEncoding> {
+        use crate::flightlog::{FrameEncoding, FramePolicy};
+        match (&self.flight_log, self.log_frames) {
+            (None, _) | (_, FramePolicy::Drop) => None,
+            (Some(_), FramePolicy::Png) => Some(FrameEncoding::Png),
+            (Some(_), FramePolicy::Raw) => Some(FrameEncoding::Raw),
+        }
+    }
+
+    fn log_frame(&mut self, frame: Result<crate::flightlog::CameraFrame>) {
+        match frame {
+            Ok(f) => self.write_log(&[LogRecord::Frame(f)]),
+            Err(e) => {
+                self.log_error = Some(format!("{e:#}"));
+                self.flight_log = None;
+            }
+        }
     }
 
     /// Ends the log: flushes it and returns how many records it holds, or why writing failed.

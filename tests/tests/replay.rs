@@ -1,9 +1,11 @@
 //! Flight logs and replay: a flight's log replays bit for bit; a changed parameter shows as the first
 //! difference; damaged logs give errors with byte offsets and keep every intact record.
 use sim_host::Scenario;
-use sim_host::flightlog::{LOG_FILE, LogRecord, parse_log, read_log};
+use sim_host::flightlog::{
+    CameraId, FrameEncoding, FramePolicy, LOG_FILE, LogReader, LogRecord, parse_log, read_log, record_frame,
+};
 use sim_host::fly::{FlyOptions, fly};
-use sim_host::replay::replay;
+use sim_host::replay::{ReplayOptions, VisionSource, replay};
 use sim_host::rng::SimRng;
 use sim_host::sil::{CameraMode, FcChoice};
 use std::path::PathBuf;
@@ -20,6 +22,7 @@ fn flown(name: &str) -> (PathBuf, Vec<u8>) {
         plots: false,
         fc: FcChoice::Sil,
         log: true,
+        frames: FramePolicy::Drop,
     };
     fly(&opts, |_, _| {}).unwrap();
     let path = out.join(LOG_FILE);
@@ -35,14 +38,22 @@ fn a_flight_replays_bit_for_bit_and_a_changed_parameter_is_found() {
     assert_eq!(log.header.seed, 5);
     let steps = log.records.iter().filter(|(_, r)| matches!(r, LogRecord::Step(_))).count();
     assert_eq!(steps, 6000, "12 s at 500 Hz");
-    let s = replay(&log, &[]).unwrap();
+    let s = replay(&log, &ReplayOptions::default()).unwrap();
     assert_eq!((s.steps, s.compared, s.differing), (6000, 6000, 0));
     assert!(s.first.is_none());
+    // The vehicle's downlink (the firmware's schedule): telemetry at 25 Hz and command acknowledgements.
+    assert!(s.downlinks_compared >= 300 && s.downlinks_differing == 0, "{s:?}");
+    let telemetry = log
+        .records
+        .iter()
+        .filter(|(_, r)| matches!(r, LogRecord::Downlink(protocol::Downlink::Telemetry(_))))
+        .count();
+    assert_eq!(telemetry, 300, "12 s at 25 Hz");
     assert!(s.links > 300, "vision, flow, commands and heartbeats were fed: {}", s.links);
 
     // A changed altitude gain alters the motor commands from the first step in the air.
     let id = control_core::params::ParamId::from_name("gains.altitude.a_z1").unwrap();
-    let s = replay(&log, &[(id, 3.0)]).unwrap();
+    let s = replay(&log, &ReplayOptions { overrides: vec![(id, 3.0)], ..ReplayOptions::default() }).unwrap();
     let d = s.first.expect("a difference");
     assert!(s.differing > 100);
     assert!(d.field.starts_with("control."), "{d}");
@@ -127,4 +138,100 @@ fn the_reader_never_panics_on_mutated_logs() {
             }
         }
     }
+}
+
+/// A short rendered flight with its frames: replay from the frames re-runs vision-core and matches; a frame
+/// changed in the log shows as a vision difference at the measurement made from it.
+#[test]
+fn replay_from_frames_reruns_the_vision_and_finds_a_changed_frame() {
+    let out = std::env::temp_dir().join(format!("replay-test-frames-{}", std::process::id()));
+    let opts = FlyOptions {
+        scenario: Scenario::paper(),
+        seed: 8,
+        duration_s: Some(3.0),
+        camera: CameraMode::Rendered,
+        out: out.clone(),
+        plots: false,
+        fc: FcChoice::Sil,
+        log: true,
+        frames: FramePolicy::Png,
+    };
+    fly(&opts, |_, _| {}).unwrap();
+    let log = read_log(&out.join(LOG_FILE)).unwrap();
+    let frames = |cam: CameraId| {
+        log.records.iter().filter(|(_, r)| matches!(r, LogRecord::Frame(f) if f.camera == cam)).count()
+    };
+    // 3 s at 30 Hz forward and 60 Hz downward, both ends included.
+    assert_eq!(frames(CameraId::Forward), 91);
+    assert_eq!(frames(CameraId::Downward), 181);
+    for (_, r) in &log.records {
+        if let LogRecord::Frame(f) = r {
+            assert_eq!(f.encoding, FrameEncoding::Png);
+            match f.camera {
+                CameraId::Forward => assert_eq!((f.width, f.height, f.channels), (640, 480, 3)),
+                CameraId::Downward => assert_eq!((f.width, f.height, f.channels), (160, 120, 1)),
+            }
+        }
+    }
+
+    let from_frames = ReplayOptions { vision: VisionSource::Frames, ..ReplayOptions::default() };
+    let s = replay(&log, &from_frames).unwrap();
+    assert!(s.identical(), "{:?}", s.first);
+    assert_eq!(s.frames, 272);
+    // Every forward frame's measurement and every flow pair delivered within the 3 s were recomputed.
+    assert!(s.measurements_compared >= 80 + 170, "{s:?}");
+    assert_eq!((s.measurements_differing, s.measurements_without_frame), (0, 0));
+
+    // Paint the line out of a forward frame in which it was seen: the detector now finds nothing in it.
+    let seen = log
+        .records
+        .iter()
+        .find_map(|(_, r)| match r {
+            LogRecord::Link(protocol::Uplink::Vision(v)) if v.observation.is_some() && v.frame_seq >= 30 => {
+                Some(v.frame_seq)
+            }
+            _ => None,
+        })
+        .expect("the line seen in a frame");
+    let mut changed = log.clone();
+    let (at, mut frame) = changed
+        .records
+        .iter()
+        .find_map(|(o, r)| match r {
+            LogRecord::Frame(f) if f.camera == CameraId::Forward && f.seq == seen => Some((*o, f.clone())),
+            _ => None,
+        })
+        .unwrap();
+    let mut img = frame.to_rgb().unwrap();
+    for p in img.data.chunks_exact_mut(3) {
+        p[0] = p[1];
+    }
+    frame.data = sim_host::imageio::png_of_rgb(&img).unwrap();
+    for (o, r) in changed.records.iter_mut() {
+        if *o == at {
+            *r = LogRecord::Frame(frame.clone());
+        }
+    }
+    let s = replay(&changed, &from_frames).unwrap();
+    let d = s.first.expect("a vision difference");
+    assert_eq!(d.kind, "vision", "{d}");
+    assert!(d.field.starts_with("observation"), "{d}");
+    assert_eq!(d.replayed, "null", "no line in the frame: {d}");
+    assert_eq!(d.time_us, frame.capture_time_us);
+    assert_eq!(s.measurements_differing, 1);
+    // From the logged vision results the same log still replays identically: the frames are not used.
+    assert!(replay(&changed, &ReplayOptions::default()).unwrap().identical());
+
+    // Skipping frames unread gives the same other records.
+    let bytes = std::fs::read(out.join(LOG_FILE)).unwrap();
+    let reader = LogReader::new(&bytes[..]).unwrap().skip_frames(true);
+    let others: Vec<_> = reader.map(|r| r.unwrap()).collect();
+    let expected: Vec<_> =
+        log.records.iter().filter(|(_, r)| !matches!(r, LogRecord::Frame(_))).cloned().collect();
+    assert_eq!(others, expected);
+
+    // A frame record is framed like any other record: its bytes decode back to it.
+    let framed = record_frame(&LogRecord::Frame(frame.clone())).unwrap();
+    assert!(framed.len() > 512 && framed.iter().filter(|&&b| b == 0).count() == 1);
+    let _ = std::fs::remove_dir_all(&out);
 }

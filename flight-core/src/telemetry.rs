@@ -1,0 +1,64 @@
+//! What the vehicle sends down the radio link after each control step: command acknowledgements, parameter
+//! replies and periodic telemetry. One policy, run by the firmware on the board, by the firmware in the loop,
+//! and by the simulator when it writes a flight log, so that a log holds the very `Downlink` records the
+//! vehicle would have sent.
+use control_core::{CommandResult, ControlOutputs, ParamReply};
+use protocol::{Downlink, Telemetry};
+
+/// Telemetry period in control steps (25 Hz at the 500 Hz control rate).
+pub const TELEMETRY_EVERY: u32 = 20;
+
+/// The downlink schedule: which messages a step produces.
+#[derive(Clone, Debug, Default)]
+pub struct DownlinkSchedule {
+    steps: u32,
+    last_command: Option<CommandResult>,
+}
+
+impl DownlinkSchedule {
+    /// A schedule before the first step.
+    pub const fn new() -> Self {
+        Self { steps: 0, last_command: None }
+    }
+
+    /// The messages of one step, in order: the acknowledgement of a command whose outcome changed, the reply
+    /// to this step's parameter request, and every [`TELEMETRY_EVERY`]th step telemetry with the step's
+    /// measured cost (`step_cost`, 0 when not measured).
+    pub fn after_step(
+        &mut self,
+        control: &ControlOutputs,
+        param_reply: Option<ParamReply>,
+        time_us: u64,
+        step_cost: u32,
+        mut send: impl FnMut(Downlink),
+    ) {
+        self.steps = self.steps.wrapping_add(1);
+        let st = control.status;
+        if st.last_command != self.last_command {
+            self.last_command = st.last_command;
+            if let Some(r) = st.last_command {
+                send(Downlink::CommandAck(r));
+            }
+        }
+        if let Some(r) = param_reply {
+            send(Downlink::Param(r));
+        }
+        if self.steps.is_multiple_of(TELEMETRY_EVERY) {
+            send(Downlink::Telemetry(Telemetry {
+                time_us,
+                mode: st.mode,
+                failsafe: st.failsafe,
+                estimate: control.estimate,
+                setpoint: control.setpoint,
+                motors_rad_s: control.motors_rad_s,
+                fix_age_s: st.fix_age_s,
+                step_cost,
+            }));
+        }
+    }
+
+    /// Steps seen.
+    pub fn steps(&self) -> u32 {
+        self.steps
+    }
+}
