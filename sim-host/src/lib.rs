@@ -5,10 +5,12 @@
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod downward;
+pub mod export;
 pub mod fil;
 pub mod flightlog;
 pub mod fly;
 pub mod imageio;
+pub mod import;
 pub mod model;
 pub mod plot;
 pub mod render;

@@ -44,6 +44,128 @@ enum Command {
     Fly(FlyArgs),
     /// Re-run the flight stack on a flight log's inputs and compare every output with the log, bit for bit.
     Replay(ReplayArgs),
+    /// Export a flight log to MCAP (Foxglove, Lichtblick, PlotJuggler, Rerun) and/or CSV files.
+    Export(ExportArgs),
+    /// Import a recorded dataset into a flight log (then `replay --out` runs the flight code on it).
+    #[command(subcommand)]
+    Import(ImportCommand),
+}
+
+#[derive(Subcommand, Debug)]
+enum ImportCommand {
+    /// A dataset in the EuRoC/ASL folder layout: imu0/data.csv, cam0/data.csv with cam0/data/*.png and,
+    /// if present, cam0/sensor.yaml for the camera's intrinsics.
+    Euroc(EurocArgs),
+}
+
+#[derive(Args, Debug)]
+struct EurocArgs {
+    /// The dataset folder (holding imu0/ and cam0/, or mav0/ with them).
+    dir: PathBuf,
+    /// The flight log to write.
+    #[arg(long, value_name = "LOG")]
+    out: PathBuf,
+    /// The scenario whose flight parameters the replay uses (its camera comes from cam0/sensor.yaml).
+    #[arg(long, default_value = "paper")]
+    scenario: String,
+    /// Which camera cam0 is: the forward camera (line detection) or the downward one (optical flow).
+    #[arg(long, value_enum, default_value = "forward")]
+    cam0: CameraChoice,
+    /// Body axes (x forward, y left, z up) in IMU axes, e.g. the EuRoC MAV's `z,-y,x` (body x = IMU z, ...).
+    #[arg(long, default_value = "z,-y,x", value_name = "AXES")]
+    imu_axes: String,
+    /// Delay from a frame's capture to its measurement reaching the flight code (s).
+    #[arg(long, default_value_t = 0.0)]
+    latency: f64,
+    /// Import only the first SECONDS of the dataset.
+    #[arg(long, value_name = "SECONDS")]
+    duration: Option<f64>,
+}
+
+/// Parses `z,-y,x` into body-from-IMU rows.
+fn parse_axes(text: &str) -> Result<[[f32; 3]; 3]> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let bad = || anyhow::anyhow!("--imu-axes {text}: expected three signed axes such as `z,-y,x`");
+    if parts.len() != 3 {
+        return Err(bad());
+    }
+    let mut m = [[0f32; 3]; 3];
+    let mut used = [false; 3];
+    for (row, p) in parts.iter().enumerate() {
+        let (sign, axis) = match p.strip_prefix('-') {
+            Some(a) => (-1.0, a),
+            None => (1.0, p.strip_prefix('+').unwrap_or(p)),
+        };
+        let k = match axis {
+            "x" => 0,
+            "y" => 1,
+            "z" => 2,
+            _ => return Err(bad()),
+        };
+        if used[k] {
+            bail!("--imu-axes {text}: axis {axis} used twice");
+        }
+        used[k] = true;
+        m[row][k] = sign;
+    }
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    if det < 0.0 {
+        bail!("--imu-axes {text}: a reflection, not a rotation (flip the sign of one axis)");
+    }
+    Ok(m)
+}
+
+fn import_euroc(a: &EurocArgs) -> Result<ExitCode> {
+    let opts = sim_host::import::EurocOptions {
+        dir: a.dir.clone(),
+        scenario: Scenario::load(&a.scenario)?,
+        cam0: match a.cam0 {
+            CameraChoice::Forward => sim_host::flightlog::CameraId::Forward,
+            CameraChoice::Down => sim_host::flightlog::CameraId::Downward,
+        },
+        imu_to_body: parse_axes(&a.imu_axes)?,
+        latency_s: a.latency,
+        max_seconds: a.duration,
+    };
+    if !(a.latency >= 0.0 && a.latency < 10.0) {
+        bail!("--latency must be in [0, 10) s");
+    }
+    let bar = ProgressBar::new(1000);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} importing [{bar:40}] ({elapsed} elapsed)")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let s = sim_host::import::import_euroc(&opts, &a.out, |f| bar.set_position((f * 1000.0) as u64))?;
+    bar.finish_and_clear();
+    eprintln!(
+        "wrote {}: {:.1} s, {} IMU samples in {} steps, {} frames ({} measured)",
+        a.out.display(),
+        s.seconds,
+        s.imu_samples,
+        s.steps,
+        s.frames,
+        s.measured
+    );
+    eprintln!(
+        "next: sim-host replay {} --out replayed.log, then sim-host export replayed.log --mcap out.mcap",
+        a.out.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+#[derive(Args, Debug)]
+struct ExportArgs {
+    /// The flight log.
+    log: PathBuf,
+    /// Write an MCAP file: one channel per topic, JSON messages, Foxglove schemas for poses and images.
+    #[arg(long, value_name = "FILE")]
+    mcap: Option<PathBuf>,
+    /// Write one CSV file per topic into this directory (nested fields as dotted columns).
+    #[arg(long, value_name = "DIR")]
+    csv: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -589,6 +711,8 @@ fn main() -> ExitCode {
         Command::Vision(VisionCommand::Flow(a)) => vision_flow(a),
         Command::Fly(a) => fly(a),
         Command::Replay(a) => replay(a),
+        Command::Export(a) => run_export(a),
+        Command::Import(ImportCommand::Euroc(a)) => import_euroc(a),
     };
     match result {
         Ok(code) => code,
@@ -698,6 +822,47 @@ fn replay(a: &ReplayArgs) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+fn run_export(a: &ExportArgs) -> Result<ExitCode> {
+    if a.mcap.is_none() && a.csv.is_none() {
+        bail!("nothing to export: give --mcap FILE and/or --csv DIR");
+    }
+    let file_len = std::fs::metadata(&a.log).map(|m| m.len()).unwrap_or(0);
+    let mut damaged = false;
+    let outputs: [(Option<&PathBuf>, bool); 2] = [(a.mcap.as_ref(), true), (a.csv.as_ref(), false)];
+    for (path, mcap) in outputs {
+        let Some(path) = path else { continue };
+        // CSV files list the frames but do not hold their pixels: skip them unread.
+        let reader = sim_host::flightlog::open_log(&a.log)?;
+        let header = reader.header.clone();
+        let bar = ProgressBar::new(file_len.max(1));
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{spinner} exporting [{bar:40}] {bytes}/{total_bytes} ({elapsed} elapsed)",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+        );
+        let mut count = 0u64;
+        let items = ProgressItems { inner: reader, bar: &bar, count: &mut count };
+        let s = if mcap {
+            sim_host::export::export_mcap(&header, items, path)?
+        } else {
+            sim_host::export::export_csv(&header, items, path)?
+        };
+        bar.finish_and_clear();
+        let total: u64 = s.messages.values().sum();
+        eprintln!("wrote {} ({} topics, {total} messages)", path.display(), s.messages.len());
+        for (topic, n) in &s.messages {
+            eprintln!("  {topic:<22} {n}");
+        }
+        for d in &s.damage {
+            eprintln!("damaged record {d} (skipped)");
+        }
+        damaged |= !s.damage.is_empty();
+    }
+    Ok(if damaged { ExitCode::from(1) } else { ExitCode::SUCCESS })
 }
 
 /// Log records with a progress bar on their byte offsets.

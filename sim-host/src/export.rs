@@ -1,0 +1,476 @@
+//! Export of a flight log to the formats engineers' tools open: MCAP (Foxglove, Lichtblick, PlotJuggler,
+//! Rerun) and CSV (spreadsheets, pandas, MATLAB).
+//!
+//! Both exports split the log into the same topics (docs/log-format.md, "Export"). In MCAP every topic is a
+//! channel with JSON messages and a JSON Schema; poses and images use the Foxglove well-known schemas
+//! (`foxglove.PoseInFrame`, `foxglove.CompressedImage` for PNG frames, `foxglove.RawImage` for raw frames) so
+//! that 3D and image panels show them without configuration. Message times are the vehicle's clock: a step's
+//! outputs at the step's time, a radio message at the step that received it, a frame at its capture time.
+use crate::flightlog::{CameraFrame, CameraId, FrameEncoding, LogHeader, LogItem, LogRecord};
+use anyhow::{Context, Result};
+use geometry::frames::Attitude;
+use protocol::{Downlink, Uplink};
+use serde_json::{Map, Value, json};
+use std::collections::BTreeMap;
+use std::path::Path;
+
+/// A topic's message: name, schema name, time (us), content.
+struct Msg {
+    topic: &'static str,
+    schema: &'static str,
+    time_us: u64,
+    value: Value,
+}
+
+fn stamp(time_us: u64) -> Value {
+    json!({"sec": time_us / 1_000_000, "nsec": (time_us % 1_000_000) * 1000})
+}
+
+fn xyz(v: [f32; 3]) -> Value {
+    json!({"x": v[0], "y": v[1], "z": v[2]})
+}
+
+fn pose_in_frame(time_us: u64, frame: &str, p: [f32; 3], q: geometry::Quat) -> Value {
+    json!({
+        "timestamp": stamp(time_us),
+        "frame_id": frame,
+        "pose": {"position": xyz(p), "orientation": {"x": q.x, "y": q.y, "z": q.z, "w": q.w}},
+    })
+}
+
+fn with_time(time_us: u64, v: Value) -> Value {
+    let mut m = Map::new();
+    m.insert("timestamp".into(), stamp(time_us));
+    m.insert("t_s".into(), json!(time_us as f64 * 1e-6));
+    match v {
+        Value::Object(o) => m.extend(o),
+        other => {
+            m.insert("value".into(), other);
+        }
+    }
+    Value::Object(m)
+}
+
+/// The topics of one record (camera frames aside). `step_us` is the time of the last step.
+fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
+    let v = |x: &dyn erased::Ser| x.json();
+    match r {
+        LogRecord::Step(s) => {
+            for i in &s.imu {
+                out.push(Msg {
+                    topic: "/imu",
+                    schema: "wlq.ImuSample",
+                    time_us: i.time_us,
+                    value: with_time(
+                        i.time_us,
+                        json!({"gyro_rad_s": xyz(i.gyro_rad_s), "accel_m_s2": xyz(i.accel_m_s2)}),
+                    ),
+                });
+            }
+            if let Some(m) = s.mag {
+                out.push(Msg {
+                    topic: "/mag",
+                    schema: "wlq.Magnetometer",
+                    time_us: s.time_us,
+                    value: with_time(s.time_us, json!({"field": xyz(m.to_array())})),
+                });
+            }
+        }
+        LogRecord::Report(rep) => {
+            let c = &rep.control;
+            let e = &c.estimate;
+            out.push(Msg {
+                topic: "/estimate/pose",
+                schema: "foxglove.PoseInFrame",
+                time_us: step_us,
+                value: pose_in_frame(step_us, "world", e.position_m.to_array(), e.q),
+            });
+            let mut est = v(e);
+            if let Value::Object(o) = &mut est {
+                o.insert(
+                    "attitude_deg".into(),
+                    json!({"roll": e.attitude.roll.to_degrees(), "pitch": e.attitude.pitch.to_degrees(),
+                           "yaw": e.attitude.yaw.to_degrees()}),
+                );
+            }
+            out.push(Msg {
+                topic: "/estimate",
+                schema: "wlq.StateEstimate",
+                time_us: step_us,
+                value: with_time(step_us, est),
+            });
+            out.push(Msg {
+                topic: "/setpoint",
+                schema: "wlq.Setpoint",
+                time_us: step_us,
+                value: with_time(step_us, v(&c.setpoint)),
+            });
+            out.push(Msg {
+                topic: "/motors",
+                schema: "wlq.MotorCommands",
+                time_us: step_us,
+                value: with_time(step_us, json!({"rad_s": c.motors_rad_s})),
+            });
+            out.push(Msg {
+                topic: "/status",
+                schema: "wlq.Status",
+                time_us: step_us,
+                value: with_time(step_us, v(&c.status)),
+            });
+            out.push(Msg {
+                topic: "/counters",
+                schema: "wlq.Counters",
+                time_us: step_us,
+                value: with_time(
+                    step_us,
+                    json!({"vision": v(&rep.vision), "flow": v(&rep.flow_counters), "estimator": v(&rep.estimator)}),
+                ),
+            });
+            if let Some(f) = &rep.flow {
+                out.push(Msg {
+                    topic: "/flow/outcome",
+                    schema: "wlq.FlowOutcome",
+                    time_us: step_us,
+                    value: with_time(step_us, v(f)),
+                });
+            }
+        }
+        LogRecord::Link(m) => {
+            let (topic, schema, value) = match m {
+                Uplink::Vision(x) => ("/link/vision", "wlq.VisionMeasurement", v(x)),
+                Uplink::Flow(x) => ("/link/flow", "wlq.FlowMeasurement", v(x)),
+                other => ("/link/other", "wlq.Uplink", v(other)),
+            };
+            out.push(Msg { topic, schema, time_us: step_us, value: with_time(step_us, value) });
+        }
+        LogRecord::Downlink(d) => {
+            let (topic, schema, time_us, value) = match d {
+                Downlink::Telemetry(t) => ("/downlink/telemetry", "wlq.Telemetry", t.time_us, v(t)),
+                other => ("/downlink/other", "wlq.Downlink", step_us, v(other)),
+            };
+            out.push(Msg { topic, schema, time_us, value: with_time(time_us, value) });
+        }
+        LogRecord::Truth { time_us, position_m, velocity_m_s, attitude_rad } => {
+            let att = Attitude { roll: attitude_rad[0], pitch: attitude_rad[1], yaw: attitude_rad[2] };
+            let q = geometry::Quat::from_mat3(&att.world_from_body());
+            out.push(Msg {
+                topic: "/truth/pose",
+                schema: "foxglove.PoseInFrame",
+                time_us: *time_us,
+                value: pose_in_frame(*time_us, "world", *position_m, q),
+            });
+            out.push(Msg {
+                topic: "/truth",
+                schema: "wlq.Truth",
+                time_us: *time_us,
+                value: with_time(
+                    *time_us,
+                    json!({"position_m": xyz(*position_m), "velocity_m_s": xyz(*velocity_m_s),
+                           "attitude_deg": {"roll": attitude_rad[0].to_degrees(),
+                                            "pitch": attitude_rad[1].to_degrees(),
+                                            "yaw": attitude_rad[2].to_degrees()}}),
+                ),
+            });
+        }
+        LogRecord::Frame(_) => {}
+    }
+}
+
+/// Serialisation to JSON values of any serde type, behind one object-safe trait.
+mod erased {
+    pub trait Ser {
+        fn json(&self) -> serde_json::Value;
+    }
+    impl<T: serde::Serialize> Ser for T {
+        fn json(&self) -> serde_json::Value {
+            serde_json::to_value(self).unwrap_or(serde_json::Value::Null)
+        }
+    }
+}
+
+fn camera_topic(c: CameraId) -> &'static str {
+    match c {
+        CameraId::Forward => "/camera/forward",
+        CameraId::Downward => "/camera/down",
+    }
+}
+
+/// A frame as a Foxglove image message (PNG: `CompressedImage`; raw: `RawImage`).
+fn image_message(f: &CameraFrame) -> (&'static str, Value) {
+    let frame_id = match f.camera {
+        CameraId::Forward => "camera_forward",
+        CameraId::Downward => "camera_down",
+    };
+    match f.encoding {
+        FrameEncoding::Png => (
+            "foxglove.CompressedImage",
+            json!({"timestamp": stamp(f.capture_time_us), "frame_id": frame_id, "format": "png",
+                   "data": base64(&f.data)}),
+        ),
+        FrameEncoding::Raw => (
+            "foxglove.RawImage",
+            json!({"timestamp": stamp(f.capture_time_us), "frame_id": frame_id, "width": f.width,
+                   "height": f.height, "encoding": if f.channels == 3 { "rgb8" } else { "mono8" },
+                   "step": f.width as u32 * f.channels as u32, "data": base64(&f.data)}),
+        ),
+    }
+}
+
+/// Standard base64 (RFC 4648, with padding), as JSON carries bytes in the Foxglove schemas.
+pub fn base64(data: &[u8]) -> String {
+    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::with_capacity(data.len().div_ceil(3) * 4);
+    for c in data.chunks(3) {
+        let n = (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
+        s.push(A[(n >> 18) as usize & 63] as char);
+        s.push(A[(n >> 12) as usize & 63] as char);
+        s.push(if c.len() > 1 { A[(n >> 6) as usize & 63] as char } else { '=' });
+        s.push(if c.len() > 2 { A[n as usize & 63] as char } else { '=' });
+    }
+    s
+}
+
+/// JSON Schema of a channel: the Foxglove well-known schemas, or an object schema named after our record.
+fn schema_of(name: &str) -> Value {
+    let time =
+        json!({"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}});
+    let vec3 = json!({"type": "object", "properties": {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}}});
+    match name {
+        "foxglove.PoseInFrame" => json!({
+            "title": name, "type": "object",
+            "properties": {
+                "timestamp": time, "frame_id": {"type": "string"},
+                "pose": {"type": "object", "properties": {
+                    "position": vec3,
+                    "orientation": {"type": "object", "properties": {"x": {"type": "number"}, "y": {"type": "number"},
+                                    "z": {"type": "number"}, "w": {"type": "number"}}}}}
+            }
+        }),
+        "foxglove.CompressedImage" => json!({
+            "title": name, "type": "object",
+            "properties": {"timestamp": time, "frame_id": {"type": "string"}, "format": {"type": "string"},
+                           "data": {"type": "string", "contentEncoding": "base64"}}
+        }),
+        "foxglove.RawImage" => json!({
+            "title": name, "type": "object",
+            "properties": {"timestamp": time, "frame_id": {"type": "string"}, "width": {"type": "integer"},
+                           "height": {"type": "integer"}, "encoding": {"type": "string"}, "step": {"type": "integer"},
+                           "data": {"type": "string", "contentEncoding": "base64"}}
+        }),
+        _ => {
+            json!({"title": name, "type": "object", "properties": {"timestamp": time, "t_s": {"type": "number"}}})
+        }
+    }
+}
+
+/// What an export wrote.
+#[derive(Clone, Debug, Default)]
+pub struct ExportSummary {
+    /// Messages per topic.
+    pub messages: BTreeMap<String, u64>,
+    /// Damaged stretches of the log (skipped).
+    pub damage: Vec<crate::flightlog::LogDamage>,
+}
+
+/// Writes a log's topics as an MCAP file.
+pub fn export_mcap(
+    header: &LogHeader,
+    records: impl Iterator<Item = LogItem>,
+    path: &Path,
+) -> Result<ExportSummary> {
+    let file = std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+    let opts =
+        mcap::WriteOptions::new().profile("").library(format!("sim-host {}", env!("CARGO_PKG_VERSION")));
+    let mut w = opts.create(std::io::BufWriter::with_capacity(1 << 20, file))?;
+    // The log's header as MCAP metadata: the scenario and how it flew.
+    let mut meta = BTreeMap::new();
+    meta.insert("scenario_toml".to_string(), header.scenario_toml.clone());
+    meta.insert("seed".to_string(), header.seed.to_string());
+    meta.insert("camera".to_string(), header.camera.clone());
+    meta.insert("flight_computer".to_string(), header.flight_computer.clone());
+    meta.insert("writer".to_string(), header.writer.clone());
+    meta.insert("log_schema_hash".to_string(), header.schema_hash.clone());
+    w.write_metadata(&mcap::records::Metadata { name: "flight".into(), metadata: meta })?;
+    let mut channels: BTreeMap<&'static str, u16> = BTreeMap::new();
+    let mut summary = ExportSummary::default();
+    let mut step_us = 0u64;
+    let mut msgs = Vec::new();
+    let mut seq: BTreeMap<u16, u32> = BTreeMap::new();
+    let mut put = |w: &mut mcap::Writer<_>,
+                   topic: &'static str,
+                   schema: &'static str,
+                   time_us: u64,
+                   data: &[u8]|
+     -> Result<()> {
+        let id = match channels.get(topic) {
+            Some(&id) => id,
+            None => {
+                let sid = w.add_schema(schema, "jsonschema", &serde_json::to_vec(&schema_of(schema))?)?;
+                let id = w.add_channel(sid, topic, "json", &BTreeMap::new())?;
+                channels.insert(topic, id);
+                id
+            }
+        };
+        let s = seq.entry(id).or_insert(0);
+        *s += 1;
+        let t = time_us * 1000;
+        w.write_to_known_channel(
+            &mcap::records::MessageHeader { channel_id: id, sequence: *s, log_time: t, publish_time: t },
+            data,
+        )?;
+        *summary.messages.entry(topic.to_string()).or_insert(0) += 1;
+        Ok(())
+    };
+    for item in records {
+        let (_, r) = match item {
+            Ok(r) => r,
+            Err(d) => {
+                summary.damage.push(d);
+                continue;
+            }
+        };
+        if let LogRecord::Step(s) = &r {
+            step_us = s.time_us;
+        }
+        if let LogRecord::Frame(f) = &r {
+            let (schema, v) = image_message(f);
+            put(&mut w, camera_topic(f.camera), schema, f.capture_time_us, &serde_json::to_vec(&v)?)?;
+            continue;
+        }
+        msgs.clear();
+        topics(&r, step_us, &mut msgs);
+        for m in &msgs {
+            put(&mut w, m.topic, m.schema, m.time_us, &serde_json::to_vec(&m.value)?)?;
+        }
+    }
+    w.finish()?;
+    Ok(summary)
+}
+
+/// Writes a log's topics as CSV files in `dir`, one per topic (`/estimate/pose` -> `estimate_pose.csv`),
+/// nested fields flattened into dotted column names; camera frames are listed in `frames.csv`.
+pub fn export_csv(
+    header: &LogHeader,
+    records: impl Iterator<Item = LogItem>,
+    dir: &Path,
+) -> Result<ExportSummary> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let _ = header;
+    // Rows per topic, kept until the end so that each file's columns are the union over its rows.
+    let mut tables: BTreeMap<&'static str, (Vec<String>, Vec<Vec<(String, String)>>)> = BTreeMap::new();
+    let mut summary = ExportSummary::default();
+    let mut step_us = 0u64;
+    let mut msgs = Vec::new();
+    for item in records {
+        let (_, r) = match item {
+            Ok(r) => r,
+            Err(d) => {
+                summary.damage.push(d);
+                continue;
+            }
+        };
+        if let LogRecord::Step(s) = &r {
+            step_us = s.time_us;
+        }
+        msgs.clear();
+        if let LogRecord::Frame(f) = &r {
+            msgs.push(Msg {
+                topic: "/frames",
+                schema: "",
+                time_us: f.capture_time_us,
+                value: with_time(
+                    f.capture_time_us,
+                    json!({"camera": f.camera, "seq": f.seq, "width": f.width, "height": f.height,
+                           "channels": f.channels, "encoding": f.encoding, "bytes": f.data.len()}),
+                ),
+            });
+        } else {
+            topics(&r, step_us, &mut msgs);
+        }
+        for m in msgs.drain(..) {
+            let mut row = Vec::new();
+            flatten(&m.value, String::new(), &mut row);
+            row.retain(|(k, _)| !k.starts_with("timestamp."));
+            let t = tables.entry(m.topic).or_default();
+            for (k, _) in &row {
+                if !t.0.contains(k) {
+                    t.0.push(k.clone());
+                }
+            }
+            t.1.push(row);
+            *summary.messages.entry(m.topic.to_string()).or_insert(0) += 1;
+        }
+    }
+    for (topic, (cols, rows)) in &mut tables {
+        // Time first.
+        if let Some(i) = cols.iter().position(|c| c == "t_s") {
+            let c = cols.remove(i);
+            cols.insert(0, c);
+        }
+        let name = format!("{}.csv", topic.trim_start_matches('/').replace('/', "_"));
+        let path = dir.join(name);
+        let mut s = cols.join(",") + "\n";
+        for row in rows {
+            let map: BTreeMap<&str, &str> = row.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+            let cells: Vec<&str> = cols.iter().map(|c| map.get(c.as_str()).copied().unwrap_or("")).collect();
+            s.push_str(&cells.join(","));
+            s.push('\n');
+        }
+        std::fs::write(&path, s).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(summary)
+}
+
+/// Flattens JSON into (dotted path, cell) pairs; arrays index as `name[0]`; null is an empty cell.
+fn flatten(v: &Value, path: String, out: &mut Vec<(String, String)>) {
+    match v {
+        Value::Object(o) => {
+            for (k, x) in o {
+                let p = if path.is_empty() { k.clone() } else { format!("{path}.{k}") };
+                flatten(x, p, out);
+            }
+        }
+        Value::Array(a) => {
+            for (i, x) in a.iter().enumerate() {
+                flatten(x, format!("{path}[{i}]"), out);
+            }
+        }
+        Value::Null => out.push((path, String::new())),
+        Value::String(s) => out.push((path, csv_cell(s))),
+        other => out.push((path, other.to_string())),
+    }
+}
+
+fn csv_cell(s: &str) -> String {
+    if s.contains([',', '"', '\n']) { format!("\"{}\"", s.replace('"', "\"\"")) } else { s.to_string() }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_matches_rfc4648_vectors() {
+        for (i, o) in [
+            ("", ""),
+            ("f", "Zg=="),
+            ("fo", "Zm8="),
+            ("foo", "Zm9v"),
+            ("foob", "Zm9vYg=="),
+            ("fooba", "Zm9vYmE="),
+            ("foobar", "Zm9vYmFy"),
+        ] {
+            assert_eq!(base64(i.as_bytes()), o);
+        }
+    }
+
+    #[test]
+    fn nested_values_flatten_to_dotted_columns() {
+        let mut row = Vec::new();
+        flatten(&json!({"a": {"b": 1, "c": [2, 3]}, "d": null, "e": "x,y"}), String::new(), &mut row);
+        let cols: Vec<&str> = row.iter().map(|(k, _)| k.as_str()).collect();
+        assert_eq!(cols, ["a.b", "a.c[0]", "a.c[1]", "d", "e"]);
+        assert_eq!(row[4].1, "\"x,y\"");
+        assert_eq!(row[3].1, "");
+    }
+}
