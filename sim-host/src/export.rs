@@ -347,6 +347,9 @@ pub fn export_mcap(
     Ok(summary)
 }
 
+/// A CSV table being built: the columns, then each row's (column, cell) pairs.
+type Table = (Vec<String>, Vec<Vec<(String, String)>>);
+
 /// Writes a log's topics as CSV files in `dir`, one per topic (`/estimate/pose` -> `estimate_pose.csv`),
 /// nested fields flattened into dotted column names; camera frames are listed in `frames.csv`.
 pub fn export_csv(
@@ -357,7 +360,7 @@ pub fn export_csv(
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let _ = header;
     // Rows per topic, kept until the end so that each file's columns are the union over its rows.
-    let mut tables: BTreeMap<&'static str, (Vec<String>, Vec<Vec<(String, String)>>)> = BTreeMap::new();
+    let mut tables: BTreeMap<&'static str, Table> = BTreeMap::new();
     let mut summary = ExportSummary::default();
     let mut step_us = 0u64;
     let mut msgs = Vec::new();
