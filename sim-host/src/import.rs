@@ -276,7 +276,10 @@ pub fn import_euroc(opts: &EurocOptions, out: &Path, mut progress: impl FnMut(f6
             w.write(&LogRecord::Frame(frame))?;
             summary.frames += 1;
             if let Some(m) = msg {
-                pending.push((*ft + latency_us, m));
+                // Not before the IMU has covered the capture time: the stack solves the frame with the attitude
+                // at that time.
+                let covered = imu.get(imu.partition_point(|s| s.time_us < *ft)).map_or(*ft, |s| s.time_us);
+                pending.push(((*ft + latency_us).max(covered), m));
             }
         }
         for (_, m) in pending.iter().filter(|(at, _)| *at <= t) {
