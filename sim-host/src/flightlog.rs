@@ -648,3 +648,108 @@ pub fn open_log(path: &Path) -> Result<LogReader<std::io::BufReader<std::fs::Fil
 pub fn read_log(path: &Path) -> Result<FlightLog> {
     collect(open_log(path)?)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hex(b: &[u8]) -> String {
+        b.iter().map(|x| format!("{x:02X}")).collect::<Vec<_>>().join(" ")
+    }
+
+    fn unhex(s: &str) -> Vec<u8> {
+        s.split_whitespace().map(|h| u8::from_str_radix(h, 16).unwrap()).collect()
+    }
+
+    // Pinned bytes (docs/log-format.md, "Golden bytes"): changing them is a log format change: bump
+    // LOG_FORMAT_VERSION (or the wire version) and update the document.
+    #[test]
+    fn golden_bytes_of_log_records() {
+        // Body 01 | 00 (Link) 02 (Heartbeat) | CRC 0xDBEE; COBS [02 01] [04 02 EE DB]; delimiter.
+        let hb = record_frame(&LogRecord::Link(Uplink::Heartbeat)).unwrap();
+        assert_eq!(hex(&hb), "02 01 04 02 EE DB 00");
+        assert_eq!(crc16(&[1, 0, 2]), 0xDBEE);
+        // Truth: 03, time 1000 as varint E8 07, nine f32 little endian (1.0, 2.0, 0.5, then zeros).
+        let t = LogRecord::Truth {
+            time_us: 1000,
+            position_m: [1.0, 2.0, 0.5],
+            velocity_m_s: [0.0; 3],
+            attitude_rad: [0.0; 3],
+        };
+        let truth = "05 01 03 E8 07 01 03 80 3F 01 01 02 40 01 01 02 3F 01 01 01 01 01 01 01 01 01 01 01 01 01 01 01 \
+                     01 01 01 01 01 01 01 01 03 20 AD 00";
+        assert_eq!(record_frame(&t).unwrap(), unhex(truth));
+        // Frame: 04, Downward 01, seq 03, time 200 = C8 01, width 02, height 01, channels 01, Raw 00, three
+        // zero f32, data length 02 then 07 00.
+        let f = LogRecord::Frame(CameraFrame {
+            camera: CameraId::Downward,
+            seq: 3,
+            capture_time_us: 200,
+            width: 2,
+            height: 1,
+            channels: 1,
+            encoding: FrameEncoding::Raw,
+            rotation_hint_cam: [0.0; 3],
+            data: vec![7, 0],
+        });
+        let framed = record_frame(&f).unwrap();
+        assert_eq!(
+            framed,
+            unhex("0A 01 04 01 03 C8 01 02 01 01 01 01 01 01 01 01 01 01 01 01 01 01 03 02 07 03 7E A0 00")
+        );
+        // Decodes back through the reader.
+        let mut bytes = header_bytes(&sample_header()).unwrap();
+        bytes.extend_from_slice(&framed);
+        bytes.extend_from_slice(&hb);
+        let log = parse_log(&bytes).unwrap();
+        assert_eq!(
+            log.records.iter().map(|(_, r)| r.clone()).collect::<Vec<_>>(),
+            [f, LogRecord::Link(Uplink::Heartbeat)]
+        );
+    }
+
+    fn sample_header() -> LogHeader {
+        LogHeader {
+            format_version: LOG_FORMAT_VERSION,
+            schema_hash: schema_hash(),
+            wire_version: WIRE_VERSION,
+            writer: "w".into(),
+            scenario_toml: String::new(),
+            seed: 1,
+            camera: "analytic".into(),
+            flight_computer: "sil".into(),
+        }
+    }
+
+    #[test]
+    fn golden_bytes_of_the_header_and_the_schema_hash() {
+        let b = header_bytes(&sample_header()).unwrap();
+        // "WLQLOG", version 2 (u16 LE), JSON length (u32 LE), the JSON.
+        assert_eq!(&b[..8], b"WLQLOG\x02\x00");
+        let len = u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize;
+        assert_eq!(b.len(), 12 + len);
+        assert!(
+            std::str::from_utf8(&b[12..]).unwrap().starts_with("{\"format_version\":2,\"schema_hash\":\"")
+        );
+        // The schema fingerprint of this version's records: any change to a record's fields changes it.
+        assert_eq!(schema_hash(), "eb7320df6c90c771");
+    }
+
+    #[test]
+    fn small_records_frame_exactly_as_the_radio_link_does() {
+        let mut buf = [0u8; protocol::frame::MAX_FRAME];
+        for r in [
+            LogRecord::Link(Uplink::Command(control_core::Command::Arm)),
+            LogRecord::Link(Uplink::Heartbeat),
+            LogRecord::Truth {
+                time_us: 123_456,
+                position_m: [0.5; 3],
+                velocity_m_s: [-1.0; 3],
+                attitude_rad: [0.1; 3],
+            },
+        ] {
+            let link = protocol::frame::encode(&r, &mut buf).unwrap().to_vec();
+            assert_eq!(record_frame(&r).unwrap(), link);
+        }
+    }
+}
