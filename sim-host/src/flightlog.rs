@@ -529,6 +529,8 @@ impl<R: BufRead> Iterator for LogReader<R> {
             // (damage) is skipped in bounded memory.
             let mut oversized = false;
             let mut delimited = false;
+            // A camera frame being skipped unread: its bytes are not copied.
+            let mut skipping = false;
             loop {
                 let buf = match self.input.fill_buf() {
                     Ok(b) => b,
@@ -541,17 +543,18 @@ impl<R: BufRead> Iterator for LogReader<R> {
                 if buf.is_empty() {
                     break;
                 }
-                let (take, found) = match buf.iter().position(|&b| b == 0) {
+                let (take, found) = match memchr::memchr(0, buf) {
                     Some(i) => (i + 1, true),
                     None => (buf.len(), false),
                 };
-                if !oversized {
+                if !oversized && !skipping {
                     let body = if found { &buf[..take - 1] } else { buf };
                     if self.frame.len() + body.len() + 1 > MAX_LOG_FRAME {
                         oversized = true;
                         self.frame.clear();
                     } else {
                         self.frame.extend_from_slice(body);
+                        skipping = self.skip_frames && is_frame_record(&self.frame);
                     }
                 }
                 self.input.consume(take);
@@ -583,14 +586,7 @@ impl<R: BufRead> Iterator for LogReader<R> {
             if self.frame.is_empty() {
                 continue;
             }
-            // COBS keeps the body's leading non-zero bytes in place after the first code byte: a code of 3 or
-            // more means frame[1] is the wire version and frame[2] the record kind.
-            if self.skip_frames
-                && self.frame.len() > 3
-                && self.frame[0] >= 3
-                && self.frame[1] == WIRE_VERSION
-                && self.frame[2] == FRAME_RECORD_INDEX
-            {
+            if skipping {
                 self.frames_skipped += 1;
                 continue;
             }
@@ -604,6 +600,13 @@ impl<R: BufRead> Iterator for LogReader<R> {
             });
         }
     }
+}
+
+/// Whether the start of a COBS-encoded frame is a camera frame record. COBS keeps the body's leading non-zero
+/// bytes in place after the first code byte: a code of 3 or more means byte 1 is the wire version and byte 2
+/// the record kind.
+fn is_frame_record(cobs: &[u8]) -> bool {
+    cobs.len() > 3 && cobs[0] >= 3 && cobs[1] == WIRE_VERSION && cobs[2] == FRAME_RECORD_INDEX
 }
 
 /// Reads a log from bytes. A file that is not a log, of another format version or with an unreadable
