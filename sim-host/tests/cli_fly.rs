@@ -123,4 +123,42 @@ fn fly_writes_a_log_that_replay_matches_bit_for_bit() {
     let r = bin().arg("replay").arg(&log).args(["--set", "no.such.param=1"]).output().unwrap();
     assert_eq!(r.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&r.stderr).contains("unknown parameter"));
+    // An analytic-camera log has no frames to replay from: refused with the reason.
+    let r = bin().arg("replay").arg(&log).arg("--from-frames").output().unwrap();
+    assert_eq!(r.status.code(), Some(1));
+    assert!(
+        String::from_utf8_lossy(&r.stderr).contains("no camera frames"),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    // Replay --out writes a log that replays identically itself.
+    let again = dir.join("again.log");
+    let r = bin().arg("replay").arg(&log).arg("--out").arg(&again).output().unwrap();
+    assert_eq!(r.status.code(), Some(0), "{}", String::from_utf8_lossy(&r.stderr));
+    let r = bin().arg("replay").arg(&again).output().unwrap();
+    assert_eq!(r.status.code(), Some(0), "{}", String::from_utf8_lossy(&r.stderr));
+    // Export: MCAP and CSV, with the topic counts printed.
+    let r = bin()
+        .arg("export")
+        .arg(&log)
+        .arg("--mcap")
+        .arg(dir.join("f.mcap"))
+        .arg("--csv")
+        .arg(dir.join("csv"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(0), "{err}");
+    assert!(err.contains("/estimate/pose") && err.contains("3000"), "{err}");
+    assert!(std::fs::read(dir.join("f.mcap")).unwrap().starts_with(b"\x89MCAP0\r\n"));
+    assert!(dir.join("csv").join("motors.csv").is_file());
+    let r = bin().arg("export").arg(&log).output().unwrap();
+    assert_eq!(r.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("nothing to export"));
+    // Import of a folder that is not a dataset.
+    let r = bin().args(["import", "euroc"]).arg(&dir).arg("--out").arg(dir.join("x.log")).output().unwrap();
+    assert_eq!(r.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("not a EuRoC/ASL dataset folder"));
+    let r = bin().args(["import", "euroc", ".", "--out", "x.log", "--imu-axes", "x,x,z"]).output().unwrap();
+    assert_eq!(r.status.code(), Some(1));
 }
