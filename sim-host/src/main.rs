@@ -132,12 +132,7 @@ fn import_euroc(a: &EurocArgs) -> Result<ExitCode> {
     if !(a.latency >= 0.0 && a.latency < 10.0) {
         bail!("--latency must be in [0, 10) s");
     }
-    let bar = ProgressBar::new(1000);
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} importing [{bar:40}] ({elapsed} elapsed)")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
+    let bar = progress_bar(1000, "{spinner} importing [{bar:40}] ({elapsed} elapsed)");
     let s = sim_host::import::import_euroc(&opts, &a.out, |f| bar.set_position((f * 1000.0) as u64))?;
     bar.finish_and_clear();
     eprintln!(
@@ -627,12 +622,7 @@ fn fly(a: &FlyArgs) -> Result<ExitCode> {
             FramesArg::None => sim_host::flightlog::FramePolicy::Drop,
         },
     };
-    let bar = ProgressBar::new(1000);
-    bar.set_style(
-        ProgressStyle::with_template("{spinner} flying [{bar:40}] {msg} ({elapsed} elapsed)")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
+    let bar = progress_bar(1000, "{spinner} flying [{bar:40}] {msg} ({elapsed} elapsed)");
     let result = fly(&opts, |t, end| {
         bar.set_position((t / end * 1000.0).min(1000.0) as u64);
         bar.set_message(format!("{t:.1} s simulated"));
@@ -752,13 +742,9 @@ fn replay(a: &ReplayArgs) -> Result<ExitCode> {
         }
         None => None,
     };
-    let bar = ProgressBar::new(file_len.max(1));
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{spinner} replaying [{bar:40}] {bytes}/{total_bytes} ({elapsed} elapsed)",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
+    let bar = progress_bar(
+        file_len.max(1),
+        "{spinner} replaying [{bar:40}] {bytes}/{total_bytes} ({elapsed} elapsed)",
     );
     let t0 = std::time::Instant::now();
     let mut count = 0u64;
@@ -836,13 +822,9 @@ fn run_export(a: &ExportArgs) -> Result<ExitCode> {
         // CSV files list the frames but do not hold their pixels: skip them unread.
         let reader = sim_host::flightlog::open_log(&a.log)?;
         let header = reader.header.clone();
-        let bar = ProgressBar::new(file_len.max(1));
-        bar.set_style(
-            ProgressStyle::with_template(
-                "{spinner} exporting [{bar:40}] {bytes}/{total_bytes} ({elapsed} elapsed)",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
+        let bar = progress_bar(
+            file_len.max(1),
+            "{spinner} exporting [{bar:40}] {bytes}/{total_bytes} ({elapsed} elapsed)",
         );
         let mut count = 0u64;
         let items = ProgressItems { inner: reader, bar: &bar, count: &mut count };
@@ -863,6 +845,17 @@ fn run_export(a: &ExportArgs) -> Result<ExitCode> {
         damaged |= !s.damage.is_empty();
     }
     Ok(if damaged { ExitCode::from(1) } else { ExitCode::SUCCESS })
+}
+
+/// A progress bar of `len` steps with a template.
+fn progress_bar(len: u64, template: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template(template)
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar
 }
 
 /// Log records with a progress bar on their byte offsets.

@@ -114,3 +114,30 @@ pub fn check_partial_flight(st: &RunStats, s: &Scenario, what: &str) {
     );
     assert!(st.failsafes.is_empty(), "{what}: failsafes {:?}", st.failsafes);
 }
+
+/// Flies the paper scenario for `duration_s` with its flight log (in a fresh temporary folder named after
+/// `name`); returns the log's path.
+pub fn fly_logged(
+    name: &str,
+    seed: u64,
+    duration_s: f64,
+    camera: sim_host::sil::CameraMode,
+    frames: sim_host::flightlog::FramePolicy,
+) -> std::path::PathBuf {
+    let out = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
+    let opts = sim_host::fly::FlyOptions {
+        scenario: Scenario::paper(),
+        seed,
+        duration_s: Some(duration_s),
+        camera,
+        out: out.clone(),
+        plots: false,
+        fc: sim_host::sil::FcChoice::Sil,
+        log: true,
+        frames,
+    };
+    if let Err(e) = sim_host::fly::fly(&opts, |_, _| {}) {
+        panic!("the flight failed: {e:#}");
+    }
+    out.join(sim_host::flightlog::LOG_FILE)
+}

@@ -1,9 +1,7 @@
 //! Export: an MCAP file read back by the `mcap` crate's own reader has one channel per topic, the expected
 //! schemas and as many messages as the log has records of each kind; the CSV files agree.
-use sim_host::Scenario;
-use sim_host::flightlog::{CameraId, FramePolicy, LOG_FILE, LogRecord, open_log, read_log};
-use sim_host::fly::{FlyOptions, fly};
-use sim_host::sil::{CameraMode, FcChoice};
+use sim_host::flightlog::{CameraId, FramePolicy, LogRecord, open_log, read_log};
+use sim_host::sil::CameraMode;
 use std::collections::BTreeMap;
 
 fn base64_decode(s: &str) -> Vec<u8> {
@@ -29,20 +27,8 @@ fn base64_decode(s: &str) -> Vec<u8> {
 
 #[test]
 fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
-    let out = std::env::temp_dir().join(format!("export-test-{}", std::process::id()));
-    let opts = FlyOptions {
-        scenario: Scenario::paper(),
-        seed: 4,
-        duration_s: Some(3.0),
-        camera: CameraMode::Rendered,
-        out: out.clone(),
-        plots: false,
-        fc: FcChoice::Sil,
-        log: true,
-        frames: FramePolicy::Png,
-    };
-    fly(&opts, |_, _| {}).unwrap();
-    let log_path = out.join(LOG_FILE);
+    let log_path = system_tests::fly_logged("export-test", 4, 3.0, CameraMode::Rendered, FramePolicy::Png);
+    let out = log_path.parent().unwrap().to_path_buf();
     let log = read_log(&log_path).unwrap();
 
     // What the log holds, counted independently of the exporter.

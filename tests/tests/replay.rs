@@ -1,31 +1,22 @@
 //! Flight logs and replay: a flight's log replays bit for bit; a changed parameter shows as the first
 //! difference; damaged logs give errors with byte offsets and keep every intact record.
-use sim_host::Scenario;
 use sim_host::flightlog::{
     CameraId, FrameEncoding, FramePolicy, LOG_FILE, LogReader, LogRecord, parse_log, read_log, record_frame,
 };
-use sim_host::fly::{FlyOptions, fly};
 use sim_host::replay::{ReplayOptions, VisionSource, replay};
 use sim_host::rng::SimRng;
-use sim_host::sil::{CameraMode, FcChoice};
+use sim_host::sil::CameraMode;
 use std::path::PathBuf;
 
 /// A 12 s flight (take-off, hover, start of the sweep) with its log; the bytes of the log.
 fn flown(name: &str) -> (PathBuf, Vec<u8>) {
-    let out = std::env::temp_dir().join(format!("replay-test-{name}-{}", std::process::id()));
-    let opts = FlyOptions {
-        scenario: Scenario::paper(),
-        seed: 5,
-        duration_s: Some(12.0),
-        camera: CameraMode::Analytic,
-        out: out.clone(),
-        plots: false,
-        fc: FcChoice::Sil,
-        log: true,
-        frames: FramePolicy::Drop,
-    };
-    fly(&opts, |_, _| {}).unwrap();
-    let path = out.join(LOG_FILE);
+    let path = system_tests::fly_logged(
+        &format!("replay-test-{name}"),
+        5,
+        12.0,
+        CameraMode::Analytic,
+        FramePolicy::Drop,
+    );
     let bytes = std::fs::read(&path).unwrap();
     (path, bytes)
 }
@@ -144,19 +135,8 @@ fn the_reader_never_panics_on_mutated_logs() {
 /// changed in the log shows as a vision difference at the measurement made from it.
 #[test]
 fn replay_from_frames_reruns_the_vision_and_finds_a_changed_frame() {
-    let out = std::env::temp_dir().join(format!("replay-test-frames-{}", std::process::id()));
-    let opts = FlyOptions {
-        scenario: Scenario::paper(),
-        seed: 8,
-        duration_s: Some(3.0),
-        camera: CameraMode::Rendered,
-        out: out.clone(),
-        plots: false,
-        fc: FcChoice::Sil,
-        log: true,
-        frames: FramePolicy::Png,
-    };
-    fly(&opts, |_, _| {}).unwrap();
+    let path = system_tests::fly_logged("replay-test-frames", 8, 3.0, CameraMode::Rendered, FramePolicy::Png);
+    let out = path.parent().unwrap().to_path_buf();
     let log = read_log(&out.join(LOG_FILE)).unwrap();
     let frames = |cam: CameraId| {
         log.records.iter().filter(|(_, r)| matches!(r, LogRecord::Frame(f) if f.camera == cam)).count()
