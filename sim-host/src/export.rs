@@ -263,6 +263,27 @@ fn schema_of(name: &str) -> Value {
     }
 }
 
+/// The intact records, each with the time of the last step before it (the time of a step's outputs and of the
+/// radio messages it received); damaged stretches go to `damage`.
+fn with_step_time<'a>(
+    records: impl Iterator<Item = LogItem> + 'a,
+    damage: &'a mut Vec<crate::flightlog::LogDamage>,
+) -> impl Iterator<Item = (u64, LogRecord)> + 'a {
+    let mut step_us = 0u64;
+    records.filter_map(move |item| match item {
+        Ok((_, r)) => {
+            if let LogRecord::Step(s) = &r {
+                step_us = s.time_us;
+            }
+            Some((step_us, r))
+        }
+        Err(d) => {
+            damage.push(d);
+            None
+        }
+    })
+}
+
 /// What an export wrote.
 #[derive(Clone, Debug, Default)]
 pub struct ExportSummary {
@@ -293,7 +314,6 @@ pub fn export_mcap(
     w.write_metadata(&mcap::records::Metadata { name: "flight".into(), metadata: meta })?;
     let mut channels: BTreeMap<&'static str, u16> = BTreeMap::new();
     let mut summary = ExportSummary::default();
-    let mut step_us = 0u64;
     let mut msgs = Vec::new();
     let mut seq: BTreeMap<u16, u32> = BTreeMap::new();
     let mut put = |w: &mut mcap::Writer<_>,
@@ -321,17 +341,7 @@ pub fn export_mcap(
         *summary.messages.entry(topic.to_string()).or_insert(0) += 1;
         Ok(())
     };
-    for item in records {
-        let (_, r) = match item {
-            Ok(r) => r,
-            Err(d) => {
-                summary.damage.push(d);
-                continue;
-            }
-        };
-        if let LogRecord::Step(s) = &r {
-            step_us = s.time_us;
-        }
+    for (step_us, r) in with_step_time(records, &mut summary.damage) {
         if let LogRecord::Frame(f) = &r {
             let (schema, v) = image_message(f);
             put(&mut w, camera_topic(f.camera), schema, f.capture_time_us, &serde_json::to_vec(&v)?)?;
@@ -353,28 +363,16 @@ type Table = (Vec<String>, Vec<Vec<(String, String)>>);
 /// Writes a log's topics as CSV files in `dir`, one per topic (`/estimate/pose` -> `estimate_pose.csv`),
 /// nested fields flattened into dotted column names; camera frames are listed in `frames.csv`.
 pub fn export_csv(
-    header: &LogHeader,
+    _header: &LogHeader,
     records: impl Iterator<Item = LogItem>,
     dir: &Path,
 ) -> Result<ExportSummary> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    let _ = header;
     // Rows per topic, kept until the end so that each file's columns are the union over its rows.
     let mut tables: BTreeMap<&'static str, Table> = BTreeMap::new();
     let mut summary = ExportSummary::default();
-    let mut step_us = 0u64;
     let mut msgs = Vec::new();
-    for item in records {
-        let (_, r) = match item {
-            Ok(r) => r,
-            Err(d) => {
-                summary.damage.push(d);
-                continue;
-            }
-        };
-        if let LogRecord::Step(s) = &r {
-            step_us = s.time_us;
-        }
+    for (step_us, r) in with_step_time(records, &mut summary.damage) {
         msgs.clear();
         if let LogRecord::Frame(f) = &r {
             msgs.push(Msg {

@@ -213,11 +213,7 @@ impl CameraFrame {
             (FrameEncoding::Raw, 3) => crate::imageio::GrayImage {
                 width: w,
                 height: h,
-                data: self
-                    .data
-                    .chunks_exact(3)
-                    .map(|p| ((299 * p[0] as u32 + 587 * p[1] as u32 + 114 * p[2] as u32 + 500) / 1000) as u8)
-                    .collect(),
+                data: self.data.chunks_exact(3).map(|p| crate::imageio::luma(p[0], p[1], p[2])).collect(),
             },
             (_, c) => bail!("frame {} has {c} channels (1 or 3 expected)", self.seq),
         };

@@ -139,6 +139,11 @@ fn to_rgb((info, buf): (png::OutputInfo, Vec<u8>)) -> Result<RgbImage, ImageIoEr
     Ok(RgbImage { width: w, height: h, data })
 }
 
+/// Rec. 601 luma of an 8-bit RGB pixel, rounded.
+pub fn luma(r: u8, g: u8, b: u8) -> u8 {
+    ((299 * r as u32 + 587 * g as u32 + 114 * b as u32 + 500) / 1000) as u8
+}
+
 /// Reads a PNG as 8-bit grey (colour images are converted with Rec. 601 luma weights).
 pub fn read_png_gray(path: &Path) -> Result<GrayImage, ImageIoError> {
     to_gray(decode(path)?)
@@ -151,7 +156,6 @@ pub fn gray_from_png(bytes: &[u8]) -> Result<GrayImage, ImageIoError> {
 
 fn to_gray((info, buf): (png::OutputInfo, Vec<u8>)) -> Result<GrayImage, ImageIoError> {
     let (w, h) = (info.width as usize, info.height as usize);
-    let luma = |r: u8, g: u8, b: u8| ((299 * r as u32 + 587 * g as u32 + 114 * b as u32 + 500) / 1000) as u8;
     let data = match info.color_type {
         png::ColorType::Grayscale => buf,
         png::ColorType::GrayscaleAlpha => buf.chunks_exact(2).map(|p| p[0]).collect(),
