@@ -89,6 +89,7 @@ impl Harness {
             flow: None,
             command: cmd,
             link_message: self.link_on,
+            landed: None,
         });
         self.out = Some(out);
         out
@@ -273,6 +274,7 @@ fn excessive_tilt_stops_the_motors() {
             flow: None,
             command: None,
             link_message: true,
+            landed: None,
         });
         if out.status.mode == FlightMode::Emergency {
             assert_eq!(out.status.failsafe, Some(Failsafe::ExcessiveTilt));

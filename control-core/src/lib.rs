@@ -22,10 +22,11 @@
 pub mod estimator;
 pub mod laws;
 pub mod mixer;
+pub mod motion;
 pub mod params;
 pub mod trajectory;
 
-use estimator::{BodyVelocity, Estimator, FuseOutcome, ImuSample, PositionFix, StateEstimate};
+use estimator::{AccelContext, BodyVelocity, Estimator, FuseOutcome, ImuSample, PositionFix, StateEstimate};
 use geometry::Vec3;
 use laws::{Controller, LawStatus, Setpoint};
 use mixer::MixerOutput;
@@ -182,6 +183,10 @@ pub struct ControlInputs<'a> {
     pub command: Option<Command>,
     /// Whether any message from the ground station arrived this step (link alive).
     pub link_message: bool,
+    /// An external land detector's verdict, when there is one: the recorded vehicle's own in an imported log
+    /// (`Some(true)` landed, `Some(false)` flying). `None` on this project's vehicles, whose flight mode
+    /// says it.
+    pub landed: Option<bool>,
 }
 
 /// Status of the flight code.
@@ -425,14 +430,10 @@ impl ControlCore {
 
         // Estimation: IMU prediction, covariance, measurements.
         let mut imu_rejected = 0u8;
-        let mut accel_sum = Vec3::ZERO;
-        let mut n_ok = 0u32;
         for s in inp.imu {
             if self.estimator.predict(s) {
                 self.last_imu_us = Some(s.time_us);
                 self.first_imu_us.get_or_insert(s.time_us);
-                accel_sum += Vec3::from_array(s.accel_m_s2);
-                n_ok += 1;
             } else {
                 imu_rejected = imu_rejected.saturating_add(1);
             }
@@ -440,9 +441,21 @@ impl ControlCore {
         self.estimator.propagate_covariance(now);
         let imu_ok =
             self.last_imu_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.imu_timeout_s);
-        if matches!(self.mode, FlightMode::Disarmed | FlightMode::Armed) && n_ok > 0 {
-            self.estimator.fuse_ground(accel_sum * (1.0 / n_ok as f32), traj.ground_height_m);
-        }
+        // The accelerometer's model: the flight mode says whether the vehicle flies; on the ground, at rest
+        // or not is the IMU's to tell (see `motion`).
+        let on_ground_mode = matches!(self.mode, FlightMode::Disarmed | FlightMode::Armed);
+        let airborne = if self.mode.airborne() {
+            Some(true)
+        } else if let Some(landed) = inp.landed {
+            Some(!landed)
+        } else if self.mode == FlightMode::Armed {
+            Some(false)
+        } else {
+            None
+        };
+        let pad = on_ground_mode && inp.landed != Some(false);
+        self.estimator
+            .fuse_accel(&AccelContext { airborne, pad_height_m: pad.then_some(traj.ground_height_m) });
         if let Some(m) = inp.mag {
             self.estimator.fuse_mag(m);
         }

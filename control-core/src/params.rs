@@ -23,7 +23,7 @@ impl core::fmt::Display for ParamError {
     }
 }
 
-fn check(ok: bool, field: &'static str, problem: &'static str) -> Result<(), ParamError> {
+pub(crate) fn check(ok: bool, field: &'static str, problem: &'static str) -> Result<(), ParamError> {
     if ok { Ok(()) } else { Err(ParamError { field, problem }) }
 }
 
@@ -431,13 +431,44 @@ pub struct EstimatorParams {
     pub max_fix_age_s: f32,
     /// Magnetic field in the world frame (any unit; only its horizontal direction is used).
     pub mag_field_world: [f32; 3],
+    /// At rest: standard deviation of the zero-velocity measurement, per block of samples (m/s).
+    pub still_velocity_sigma_m_s: f32,
+    /// At rest on the pad: standard deviation of the pad-height measurement, per block (m).
+    pub ground_height_sigma_m: f32,
+    /// At rest: standard deviation of a block's mean specific force as a gravity measurement (m/s^2).
+    pub still_gravity_sigma_m_s2: f32,
+    /// At rest: standard deviation of a block's mean angular rate as a gyro-bias measurement (rad/s).
+    pub still_gyro_sigma_rad_s: f32,
+    /// Carried by hand: standard deviation of a block's mean specific force as a gravity measurement, the
+    /// hand's accelerations (m/s^2).
+    pub handheld_gravity_sigma_m_s2: f32,
+    /// Rotor-drag coefficient `k` of the drag model `f_perp = -k v_perp` (1/s); 0 turns the model off.
+    pub drag_coeff_per_s: f32,
+    /// Standard deviation of a block's mean specific force perpendicular to the thrust axis in the drag
+    /// model: vibration and unmodelled aerodynamics (m/s^2).
+    pub drag_sigma_m_s2: f32,
+    /// The rotors' thrust axis in the body frame (the drag model's reference; body z for this airframe).
+    pub thrust_axis_body: [f32; 3],
+    /// Time constant with which the thrust axis is learned in flight from the specific force's direction
+    /// (s); 0 keeps `thrust_axis_body`. For recorded vehicles whose IMU mounting is unknown.
+    pub thrust_axis_learn_s: f32,
+    /// Longest gap between IMU samples that is integrated (s); longer ones are counted, not integrated.
+    pub max_imu_gap_s: f32,
+    /// Standard deviation of roll and pitch after the alignment from the first sample (rad).
+    pub initial_tilt_sigma_rad: f32,
+    /// Standard deviation of the gyro bias before any measurement (rad/s).
+    pub initial_gyro_bias_sigma_rad_s: f32,
+    /// Standard deviation of the accelerometer bias before any measurement (m/s^2).
+    pub initial_accel_bias_sigma_m_s2: f32,
+    /// The motion detector (still, carried, flying).
+    pub motion: crate::motion::MotionParams,
 }
 
 impl Default for EstimatorParams {
     fn default() -> Self {
         Self {
-            gyro_noise: 3e-3,
-            accel_noise: 0.08,
+            gyro_noise: 2e-3,
+            accel_noise: 0.03,
             gyro_bias_walk: 3e-5,
             accel_bias_walk: 3e-4,
             vision_position_floor_m: 0.004,
@@ -446,6 +477,20 @@ impl Default for EstimatorParams {
             gate_sigma: 5.0,
             max_fix_age_s: 0.25,
             mag_field_world: [0.2, -0.05, -0.4],
+            still_velocity_sigma_m_s: 0.02,
+            ground_height_sigma_m: 0.01,
+            still_gravity_sigma_m_s2: 0.1,
+            still_gyro_sigma_rad_s: 0.005,
+            handheld_gravity_sigma_m_s2: 2.0,
+            drag_coeff_per_s: 0.3,
+            drag_sigma_m_s2: 0.3,
+            thrust_axis_body: [0.0, 0.0, 1.0],
+            thrust_axis_learn_s: 0.0,
+            max_imu_gap_s: 0.25,
+            initial_tilt_sigma_rad: 0.05,
+            initial_gyro_bias_sigma_rad_s: 0.02,
+            initial_accel_bias_sigma_m_s2: 0.1,
+            motion: crate::motion::MotionParams::default(),
         }
     }
 }
@@ -474,7 +519,46 @@ impl EstimatorParams {
             m.iter().all(|v| v.is_finite()) && m[0] * m[0] + m[1] * m[1] > 1e-12,
             "estimator.mag_field_world",
             "must be finite with a horizontal component",
-        )
+        )?;
+        positive(self.still_velocity_sigma_m_s, "estimator.still_velocity_sigma_m_s")?;
+        positive(self.ground_height_sigma_m, "estimator.ground_height_sigma_m")?;
+        positive(self.still_gravity_sigma_m_s2, "estimator.still_gravity_sigma_m_s2")?;
+        positive(self.still_gyro_sigma_rad_s, "estimator.still_gyro_sigma_rad_s")?;
+        positive(self.handheld_gravity_sigma_m_s2, "estimator.handheld_gravity_sigma_m_s2")?;
+        check(
+            self.drag_coeff_per_s.is_finite() && (0.0..=2.0).contains(&self.drag_coeff_per_s),
+            "estimator.drag_coeff_per_s",
+            "must lie in [0, 2] 1/s",
+        )?;
+        positive(self.drag_sigma_m_s2, "estimator.drag_sigma_m_s2")?;
+        let n = self.thrust_axis_body;
+        check(
+            n.iter().all(|v| v.is_finite()) && n[0] * n[0] + n[1] * n[1] + n[2] * n[2] > 0.25,
+            "estimator.thrust_axis_body",
+            "must be finite and of length near 1",
+        )?;
+        non_negative(self.thrust_axis_learn_s, "estimator.thrust_axis_learn_s")?;
+        check(
+            self.max_imu_gap_s >= 0.005 && self.max_imu_gap_s <= 1.0,
+            "estimator.max_imu_gap_s",
+            "must lie in [0.005, 1] s",
+        )?;
+        check(
+            self.initial_tilt_sigma_rad > 0.0 && self.initial_tilt_sigma_rad <= 1.0,
+            "estimator.initial_tilt_sigma_rad",
+            "must lie in (0, 1] rad",
+        )?;
+        check(
+            self.initial_gyro_bias_sigma_rad_s > 0.0 && self.initial_gyro_bias_sigma_rad_s <= 1.0,
+            "estimator.initial_gyro_bias_sigma_rad_s",
+            "must lie in (0, 1] rad/s",
+        )?;
+        check(
+            self.initial_accel_bias_sigma_m_s2 > 0.0 && self.initial_accel_bias_sigma_m_s2 <= 5.0,
+            "estimator.initial_accel_bias_sigma_m_s2",
+            "must lie in (0, 5] m/s^2",
+        )?;
+        self.motion.validate()
     }
 }
 

@@ -26,6 +26,8 @@ pub struct SensorStep {
     pub imu: heapless::Vec<ImuSample, MAX_IMU_PER_STEP>,
     /// A new magnetometer reading (body frame), if any.
     pub mag: Option<Vec3>,
+    /// An external land detector's verdict (the recorded vehicle's, in imported logs); `None` in flight.
+    pub landed: Option<bool>,
 }
 
 /// Simulator to flight computer.
@@ -77,7 +79,7 @@ mod tests {
     fn the_largest_messages_fit_one_frame_and_round_trip() {
         let mut stack = FlightStack::new(FlightConfig::paper()).unwrap();
         let imu = ImuSample { time_us: 2000, gyro_rad_s: [0.01, -0.02, 0.03], accel_m_s2: [0.1, -0.2, 9.8] };
-        let out = stack.step(&StepInput { time_us: 2000, imu: &[imu], mag: None, uplink: &[] });
+        let out = stack.step(&StepInput { time_us: 2000, imu: &[imu], mag: None, uplink: &[], landed: None });
         let mut report = out.report();
         // Fill the optional parts, as the largest step reply would have them.
         report.flow = Some(crate::flow::FlowOutcome::NoGyro);
@@ -100,6 +102,7 @@ mod tests {
             time_us: 4000,
             imu: heapless::Vec::from_slice(&[imu; MAX_IMU_PER_STEP]).unwrap(),
             mag: Some(Vec3::new(0.2, -0.05, -0.4)),
+            landed: None,
         });
         let mut buf = [0u8; MAX_FRAME];
         let f = encode(&step, &mut buf).unwrap();

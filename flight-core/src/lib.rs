@@ -99,6 +99,8 @@ pub struct StepInput<'a> {
     pub mag: Option<Vec3>,
     /// Messages received from the ground station since the previous step, in arrival order.
     pub uplink: &'a [Uplink],
+    /// An external land detector's verdict (the recorded vehicle's, in imported logs); `None` in flight.
+    pub landed: Option<bool>,
 }
 
 /// The outcome of this step's vision frame, if one arrived.
@@ -401,6 +403,7 @@ impl FlightStack {
             flow,
             command,
             link_message: !inp.uplink.is_empty(),
+            landed: inp.landed,
         });
         StepOutput {
             control,
@@ -434,7 +437,13 @@ mod tests {
         let mut t = 0;
         for _ in 0..400 {
             t += 2000;
-            s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[Uplink::Heartbeat] });
+            s.step(&StepInput {
+                time_us: t,
+                imu: &imu(t),
+                mag: None,
+                uplink: &[Uplink::Heartbeat],
+                landed: None,
+            });
         }
         t += 2000;
         let out = s.step(&StepInput {
@@ -442,6 +451,7 @@ mod tests {
             imu: &imu(t),
             mag: None,
             uplink: &[Uplink::ParamSet { id: ParamId::TrajectorySpeed, value: 0.3 }],
+            landed: None,
         });
         let r = out.param_reply.unwrap();
         assert_eq!((r.id, r.value, r.outcome), (ParamId::TrajectorySpeed, 0.3, ParamOutcome::Ok));
@@ -451,12 +461,19 @@ mod tests {
             imu: &imu(t),
             mag: None,
             uplink: &[Uplink::Command(Command::Arm)],
+            landed: None,
         });
         assert_eq!(out.control.status.mode, FlightMode::Armed);
         // A frame without the line is counted, not solved.
         t += 2000;
         let m = VisionMeasurement { capture_time_us: t - 40_000, frame_seq: 0, observation: None };
-        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[Uplink::Vision(m)] });
+        let out = s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            uplink: &[Uplink::Vision(m)],
+            landed: None,
+        });
         assert_eq!(out.frame, Some(FrameOutcome::NoTarget));
         assert_eq!(out.vision.no_target, 1);
         assert_eq!(s.pending_solves(), 0);
@@ -488,12 +505,18 @@ mod tests {
         let mut t = 0;
         for _ in 0..100 {
             t += 2000;
-            s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[] });
+            s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[], landed: None });
         }
         // The step queues the frame; nothing is solved within it.
         t += 2000;
         let m = frame_seen(t - 30_000, 1);
-        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[Uplink::Vision(m)] });
+        let out = s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            uplink: &[Uplink::Vision(m)],
+            landed: None,
+        });
         assert_eq!((out.frame, out.vision.solved, out.vision.frames), (None, 0, 1));
         assert_eq!(s.pending_solves(), 1);
         // Background work solves it; the next step fuses it (the first fix initialises x and y).
@@ -501,7 +524,7 @@ mod tests {
         assert_eq!(s.pending_solves(), 0);
         let before = s.control().estimator().counters();
         t += 2000;
-        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[] });
+        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[], landed: None });
         let Some(FrameOutcome::Solved(p)) = out.frame else { panic!("solved: {:?}", out.frame) };
         let want = VisionConfig::default().target.center() - Vec3::new(0.0, -1.2, 0.0);
         assert!((p.vehicle_position_m - want).norm() < 1e-3, "{:?}", p.vehicle_position_m);
@@ -512,11 +535,11 @@ mod tests {
         t += 2000;
         let ms = [frame_seen(t - 30_000, 2), frame_seen(t - 28_000, 3), frame_seen(t - 26_000, 4)];
         let uplink = ms.map(Uplink::Vision);
-        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &uplink });
+        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &uplink, landed: None });
         assert_eq!((out.vision.frames, out.vision.dropped), (4, 1));
         assert_eq!(s.solve_pending(), 2);
         t += 2000;
-        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[] });
+        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[], landed: None });
         assert_eq!(out.vision.solved, 3);
     }
 }

@@ -305,7 +305,12 @@ impl QemuFc {
         let mut out = Vec::with_capacity(MAX_FRAME * (input.uplink.len() + 1));
         let mut buf = [0u8; MAX_FRAME];
         let msgs = input.uplink.iter().map(|m| FilToFc::Link(*m));
-        for msg in msgs.chain([FilToFc::Step(SensorStep { time_us: input.time_us, imu, mag: input.mag })]) {
+        for msg in msgs.chain([FilToFc::Step(SensorStep {
+            time_us: input.time_us,
+            imu,
+            mag: input.mag,
+            landed: input.landed,
+        })]) {
             let frame = encode(&msg, &mut buf).map_err(|e| anyhow::anyhow!("cannot frame {msg:?}: {e:?}"))?;
             out.extend_from_slice(frame);
         }

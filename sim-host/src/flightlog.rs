@@ -272,6 +272,7 @@ pub fn schema_hash() -> String {
         time_us: 3,
         imu: heapless::Vec::from_slice(&[imu]).unwrap_or_default(),
         mag: Some(Vec3::new(0.25, 0.5, -0.75)),
+        landed: Some(true),
     };
     let samples = [
         LogRecord::Link(Uplink::Heartbeat),
@@ -310,7 +311,13 @@ pub fn schema_hash() -> String {
     }
     // A report: the first step of a stack with the paper's configuration (deterministic).
     if let Ok(mut stack) = flight_core::FlightStack::new(flight_core::FlightConfig::paper()) {
-        let out = stack.step(&flight_core::StepInput { time_us: 2000, imu: &[imu], mag: None, uplink: &[] });
+        let out = stack.step(&flight_core::StepInput {
+            time_us: 2000,
+            imu: &[imu],
+            mag: None,
+            uplink: &[],
+            landed: None,
+        });
         eat(&postcard::to_allocvec(&LogRecord::Report(out.report())).unwrap_or_default());
         let c = &out.control;
         let telemetry = protocol::Telemetry {
@@ -731,7 +738,7 @@ mod tests {
             std::str::from_utf8(&b[12..]).unwrap().starts_with("{\"format_version\":2,\"schema_hash\":\"")
         );
         // The schema fingerprint of this version's records: any change to a record's fields changes it.
-        assert_eq!(schema_hash(), "eb7320df6c90c771");
+        assert_eq!(schema_hash(), "0bbfee4a32b3dd97");
     }
 
     #[test]

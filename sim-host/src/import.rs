@@ -286,7 +286,7 @@ pub fn import_euroc(opts: &EurocOptions, out: &Path, mut progress: impl FnMut(f6
             w.write(&LogRecord::Link(*m))?;
         }
         pending.retain(|(at, _)| *at > t);
-        let mut step = SensorStep { time_us: t, imu: heapless::Vec::new(), mag: None };
+        let mut step = SensorStep { time_us: t, imu: heapless::Vec::new(), mag: None, landed: None };
         while next_imu < imu.len() && imu[next_imu].time_us <= t {
             if step.imu.push(imu[next_imu]).is_err() {
                 bail!(

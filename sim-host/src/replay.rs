@@ -218,6 +218,7 @@ pub fn replay_stream(
                     imu: &step.imu,
                     mag: step.mag,
                     uplink: &uplink,
+                    landed: step.landed,
                 });
                 stack.solve_pending();
                 uplink.clear();

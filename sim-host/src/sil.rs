@@ -654,8 +654,13 @@ impl Sil {
             delivered.push(msg);
         }
         let step_mag = self.pending_mag.take();
-        let input =
-            StepInput { time_us: self.t_us, imu: &self.pending_imu, mag: step_mag, uplink: &delivered };
+        let input = StepInput {
+            time_us: self.t_us,
+            imu: &self.pending_imu,
+            mag: step_mag,
+            uplink: &delivered,
+            landed: None,
+        };
         let mut downlinks: Vec<protocol::Downlink> = Vec::new();
         let out = match self.fc.as_mut() {
             Some(Fc::Sil(stack)) => {
@@ -710,6 +715,7 @@ impl Sil {
                 time_us: self.t_us,
                 imu: heapless::Vec::from_slice(&self.pending_imu).unwrap_or_default(),
                 mag: step_mag,
+                landed: None,
             };
             let mut records: Vec<LogRecord> = delivered.iter().map(|m| LogRecord::Link(*m)).collect();
             records.push(LogRecord::Step(step));

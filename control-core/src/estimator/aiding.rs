@@ -1,0 +1,363 @@
+//! The estimator's measurements: vision fixes, optical-flow velocity, magnetometer heading, and the
+//! accelerometer's own aiding (still: zero velocity, gravity, zero rate; carried: gravity; flying: rotor drag).
+use super::{BodyVelocity, Estimator, FuseOutcome, IBA, IBG, IP, ITH, IV, N, PositionFix, wrap_pi};
+use crate::GRAVITY;
+use crate::motion::{MotionClass, MotionReport};
+use geometry::frames::Attitude;
+use geometry::{Mat3, Quat, Vec3};
+
+/// What the caller knows about the vehicle when the accelerometer's model is chosen.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AccelContext {
+    /// Whether the vehicle flies: `Some(true)` when the flight mode says so (or a recorded vehicle's land
+    /// detector), `Some(false)` when it is known to be on the ground, `None` when only the IMU can tell.
+    pub airborne: Option<bool>,
+    /// The pad's height when the vehicle rests on it (m): the ground constraint holds the height there while
+    /// it is still.
+    pub pad_height_m: Option<f32>,
+}
+
+/// Which accelerometer model was applied for a block.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AccelAiding {
+    /// At rest: zero velocity, gravity, zero rate (and the pad height).
+    Still,
+    /// Carried: gravity with the hand's accelerations as noise.
+    Gravity,
+    /// Flying: the rotor-drag model.
+    Drag,
+    /// None (flying without a drag model, or nothing known yet).
+    None,
+}
+
+/// Two unit vectors spanning the plane perpendicular to `n` (unit).
+fn perpendicular_basis(n: Vec3) -> (Vec3, Vec3) {
+    let a = if n.x.abs() < 0.8 { Vec3::X } else { Vec3::Y };
+    let e1 = n.cross(a).normalized().unwrap_or(Vec3::X);
+    (e1, n.cross(e1))
+}
+
+impl Estimator {
+    fn yaw_row(r: &Mat3) -> [f32; N] {
+        let mut h = [0.0; N];
+        h[ITH..ITH + 3].copy_from_slice(&r.m[2]);
+        h
+    }
+
+    /// Rotates the attitude (and the stored history) about the vertical by `dyaw` and resets the yaw
+    /// covariance: used for the first yaw measurement, when the filter's linearisation cannot absorb a large
+    /// error.
+    fn reset_yaw(&mut self, dyaw: f32, var: f32) {
+        let rz = Quat::from_rotvec(Vec3::new(0.0, 0.0, dyaw));
+        self.q = rz.mul(&self.q).normalized();
+        for s in self.history.iter_mut() {
+            s.q = rz.mul(&s.q).normalized();
+        }
+        // Decorrelate the attitude errors and set the yaw variance (the vertical in body axes ~ z).
+        for i in 0..N {
+            for k in 0..3 {
+                if i != ITH + k {
+                    self.cov[i][ITH + k] = 0.0;
+                    self.cov[ITH + k][i] = 0.0;
+                }
+            }
+        }
+        let up = self.q.to_mat3().m[2];
+        let tilt_var = self.cov[ITH][ITH].max(self.cov[ITH + 1][ITH + 1]);
+        for k in 0..3 {
+            self.cov[ITH + k][ITH + k] = tilt_var + (var - tilt_var).max(0.0) * up[k] * up[k];
+        }
+        self.yaw_initialised = true;
+    }
+
+    /// Fuses a delayed vision fix (position and yaw) taken at `fix.capture_time_us`, received at `now_us`.
+    pub fn fuse_fix(&mut self, fix: &PositionFix, now_us: u64) -> FuseOutcome {
+        if !fix.position_m.is_finite() || !fix.yaw_rad.is_finite() {
+            return FuseOutcome::Invalid;
+        }
+        let max_age = (self.params.max_fix_age_s * 1e6) as u64;
+        if fix.capture_time_us > now_us || now_us - fix.capture_time_us > max_age {
+            self.counters.fixes_stale += 1;
+            return FuseOutcome::Stale;
+        }
+        let Some(past) = self.state_at(fix.capture_time_us) else {
+            self.counters.fixes_stale += 1;
+            return FuseOutcome::Stale;
+        };
+        let age = (now_us - fix.capture_time_us) as f32 * 1e-6;
+        let mut outcome = FuseOutcome::Accepted;
+        // Yaw first: the position's frame does not depend on it, but a first fix resets it.
+        let yaw_past = Attitude::from_world_from_body(&past.q.to_mat3()).yaw;
+        let yaw_innov = wrap_pi(fix.yaw_rad - yaw_past);
+        let yaw_sd = fix.yaw_std_rad.max(self.params.vision_yaw_floor_rad);
+        let yaw_var = yaw_sd * yaw_sd;
+        if !self.yaw_initialised {
+            self.reset_yaw(yaw_innov, yaw_var);
+            outcome = FuseOutcome::Initialised;
+        } else if !self.update(&Self::yaw_row(&self.q.to_mat3()), yaw_innov, yaw_var, true) {
+            self.counters.fixes_rejected += 1;
+        }
+        // Position: the first fix of each horizontal axis initialises it.
+        let floor = self.params.vision_position_floor_m;
+        let mut corr = Vec3::ZERO;
+        let mut any_rejected = false;
+        for axis in 0..3 {
+            if axis == 0 && !fix.x_observed {
+                continue;
+            }
+            let meas = fix.position_m[axis];
+            let std = fix.position_std_m[axis].max(floor);
+            if axis < 2 && !self.xy_initialised[axis] {
+                let moved = self.p[axis] - past.p[axis];
+                let d = meas + moved - self.p[axis];
+                let mut dx = [0.0; N];
+                dx[IP + axis] = d;
+                self.inject(&dx);
+                for i in 0..N {
+                    self.cov[IP + axis][i] = 0.0;
+                    self.cov[i][IP + axis] = 0.0;
+                }
+                self.cov[IP + axis][IP + axis] = std * std;
+                self.xy_initialised[axis] = true;
+                outcome = FuseOutcome::Initialised;
+                continue;
+            }
+            let mut h = [0.0; N];
+            h[IP + axis] = 1.0;
+            h[IV + axis] = -age;
+            let before = (self.p, self.v);
+            let innov = meas - (past.p[axis] + corr[axis]);
+            if self.update(&h, innov, std * std, true) {
+                corr += (self.p - before.0) - (self.v - before.1) * age;
+            } else {
+                any_rejected = true;
+            }
+        }
+        if any_rejected {
+            self.counters.fixes_rejected += 1;
+            if outcome == FuseOutcome::Accepted {
+                outcome = FuseOutcome::Rejected;
+            }
+        } else {
+            self.counters.fixes_accepted += 1;
+        }
+        outcome
+    }
+
+    /// Fuses a body-frame horizontal velocity (optical flow) measured around `m.time_us`.
+    pub fn fuse_body_velocity(&mut self, m: &BodyVelocity, now_us: u64) -> FuseOutcome {
+        if !(m.velocity_m_s[0].is_finite() && m.velocity_m_s[1].is_finite() && m.std_m_s > 0.0) {
+            return FuseOutcome::Invalid;
+        }
+        let max_age = (self.params.max_fix_age_s * 1e6) as u64;
+        if m.time_us > now_us || now_us - m.time_us > max_age {
+            return FuseOutcome::Stale;
+        }
+        let Some(past) = self.state_at(m.time_us) else { return FuseOutcome::Stale };
+        let mut accepted = true;
+        for axis in 0..2 {
+            // v_body = R^T v: row `axis` of R^T is column `axis` of R.
+            let r = self.q.to_mat3();
+            let rp = past.q.to_mat3();
+            let col = rp.col(axis);
+            let pred = col.dot(past.v);
+            let mut h = [0.0; N];
+            let c = r.col(axis);
+            h[IV..IV + 3].copy_from_slice(&c.to_array());
+            // d(R^T v)/dtheta = [R^T v]x (body-frame error).
+            let vb = r.tmul_vec(self.v);
+            let sk = Mat3::skew(vb);
+            h[ITH..ITH + 3].copy_from_slice(&sk.m[axis]);
+            if !self.update(&h, m.velocity_m_s[axis] - pred, m.std_m_s * m.std_m_s, true) {
+                accepted = false;
+            }
+        }
+        if accepted {
+            self.counters.flow_accepted += 1;
+            FuseOutcome::Accepted
+        } else {
+            self.counters.flow_rejected += 1;
+            FuseOutcome::Rejected
+        }
+    }
+
+    /// Fuses the magnetometer's heading (tilt-compensated with the current attitude).
+    pub fn fuse_mag(&mut self, field_body: Vec3) -> FuseOutcome {
+        if !field_body.is_finite() {
+            return FuseOutcome::Invalid;
+        }
+        let r = self.q.to_mat3();
+        let m_w = r.mul_vec(field_body);
+        let b = self.params.mag_field_world;
+        if m_w.x * m_w.x + m_w.y * m_w.y < 1e-12 {
+            return FuseOutcome::Invalid;
+        }
+        let innov = wrap_pi(libm::atan2f(b[1], b[0]) - libm::atan2f(m_w.y, m_w.x));
+        let var = self.params.mag_heading_sigma_rad * self.params.mag_heading_sigma_rad;
+        if !self.yaw_initialised {
+            self.reset_yaw(innov, var);
+            return FuseOutcome::Initialised;
+        }
+        if self.update(&Self::yaw_row(&r), innov, var, true) {
+            self.counters.mag_accepted += 1;
+            FuseOutcome::Accepted
+        } else {
+            FuseOutcome::Rejected
+        }
+    }
+
+    /// The accelerometer's aiding for the blocks of samples finished since the last call (the motion
+    /// detector's reports, see [`crate::motion`]): returns the model applied, if a block ended.
+    pub fn fuse_accel(&mut self, ctx: &AccelContext) -> Option<AccelAiding> {
+        let report = self.motion_report.take()?;
+        let still = report.class == MotionClass::Still;
+        let aiding = match ctx.airborne {
+            Some(true) => AccelAiding::Drag,
+            _ if still => AccelAiding::Still,
+            Some(false) => AccelAiding::Gravity,
+            None => match report.class {
+                MotionClass::ThrustBorne => AccelAiding::Drag,
+                _ => AccelAiding::Gravity,
+            },
+        };
+        let aiding = match aiding {
+            AccelAiding::Drag if self.params.drag_coeff_per_s <= 0.0 => AccelAiding::None,
+            a => a,
+        };
+        match aiding {
+            AccelAiding::Still => self.fuse_still(&report, ctx.pad_height_m),
+            AccelAiding::Gravity => {
+                let sigma = self.params.handheld_gravity_sigma_m_s2;
+                // The hand's accelerations would leak into the accelerometer bias: the tilt only.
+                if !self.fuse_gravity_with(report.block.mean_accel, sigma, true, false) {
+                    self.counters.accel_rejected += 1;
+                }
+            }
+            AccelAiding::Drag => self.fuse_drag(&report),
+            AccelAiding::None => {}
+        }
+        Some(aiding)
+    }
+
+    /// At rest: zero velocity, the pad's height, gravity from the block's mean specific force (roll and
+    /// pitch), and the block's mean angular rate as the gyro bias.
+    fn fuse_still(&mut self, report: &MotionReport, pad_height_m: Option<f32>) {
+        let p = self.params;
+        let vv = p.still_velocity_sigma_m_s * p.still_velocity_sigma_m_s;
+        for axis in 0..3 {
+            let mut h = [0.0; N];
+            h[IV + axis] = 1.0;
+            self.update(&h, -self.v[axis], vv, false);
+        }
+        if let Some(z) = pad_height_m {
+            let mut h = [0.0; N];
+            h[IP + 2] = 1.0;
+            let s = p.ground_height_sigma_m;
+            self.update(&h, z - self.p.z, s * s, false);
+        }
+        self.fuse_gravity(report.block.mean_accel, p.still_gravity_sigma_m_s2, false);
+        let gv = p.still_gyro_sigma_rad_s * p.still_gyro_sigma_rad_s;
+        for axis in 0..3 {
+            let mut h = [0.0; N];
+            h[IBG + axis] = 1.0;
+            self.update(&h, report.block.mean_gyro[axis] - self.bg[axis], gv, false);
+        }
+        self.counters.still_blocks += 1;
+    }
+
+    /// Gravity from a mean specific force `f` (body): `f = R^T (0, 0, g) + b_a`, along the two directions
+    /// perpendicular to the predicted gravity (the ones that tell the tilt). Returns whether it was used.
+    fn fuse_gravity(&mut self, f: Vec3, sigma: f32, gate: bool) -> bool {
+        self.fuse_gravity_with(f, sigma, gate, true)
+    }
+
+    /// [`Self::fuse_gravity`], with or without the accelerometer bias among the states it corrects.
+    fn fuse_gravity_with(&mut self, f: Vec3, sigma: f32, gate: bool, with_bias: bool) -> bool {
+        if !f.is_finite() || (f.norm() - GRAVITY).abs() > 3.0 * sigma.max(0.3) {
+            return false;
+        }
+        let r = self.q.to_mat3();
+        let g_b = r.tmul_vec(Vec3::new(0.0, 0.0, GRAVITY));
+        let up = g_b * (1.0 / GRAVITY);
+        let (e1, e2) = perpendicular_basis(up);
+        let mut ok = true;
+        for e in [e1, e2] {
+            // d f / d theta = [R^T g]x (body-frame error), d f / d b_a = I.
+            let r = self.q.to_mat3();
+            let g_b = r.tmul_vec(Vec3::new(0.0, 0.0, GRAVITY));
+            let row = Mat3::skew(g_b).tmul_vec(e);
+            let mut h = [0.0; N];
+            h[ITH..ITH + 3].copy_from_slice(&row.to_array());
+            if with_bias {
+                h[IBA..IBA + 3].copy_from_slice(&e.to_array());
+            }
+            let pred = e.dot(g_b + self.ba);
+            ok &= self.update(&h, e.dot(f) - pred, sigma * sigma, gate);
+        }
+        ok
+    }
+
+    /// Flying: the rotor-drag model. Perpendicular to the thrust axis `n` the specific force is the rotors'
+    /// drag, proportional to the body velocity: `f_perp = -k (R^T v)_perp + b_a,perp` (Leishman, Macdonald,
+    /// Beard and McLain, "Quadrotors and accelerometers: state estimation with an improved dynamic model",
+    /// IEEE Control Systems Magazine 34(1), 2014; PX4's EKF2 fuses the same model as its multirotor drag
+    /// fusion, coefficient `EKF2_MCOEF`). The velocity it observes makes the tilt observable through the
+    /// velocity's dynamics; the gravity model would read the tilt of every acceleration as level.
+    fn fuse_drag(&mut self, report: &MotionReport) {
+        let f = report.block.mean_accel;
+        let Some(u) = f.normalized() else { return };
+        let learn = self.params.thrust_axis_learn_s > 0.0;
+        if learn {
+            // The recorded vehicle's thrust axis in the IMU's frame is learned: the specific force's mean
+            // direction in flight (its drag part averages out).
+            if !self.thrust_axis_learned {
+                self.thrust_axis = u;
+                self.thrust_axis_learned = true;
+            } else {
+                let a = (self.params.motion.block_s / self.params.thrust_axis_learn_s).min(1.0);
+                self.thrust_axis = (self.thrust_axis + (u - self.thrust_axis) * a).normalized().unwrap_or(u);
+            }
+        }
+        let k = self.params.drag_coeff_per_s;
+        let s = self.params.drag_sigma_m_s2;
+        let (e1, e2) = perpendicular_basis(self.thrust_axis);
+        let mut ok = true;
+        for e in [e1, e2] {
+            let r = self.q.to_mat3();
+            let vb = r.tmul_vec(self.v);
+            // d(R^T v)/dv = R^T, d(R^T v)/dtheta = [R^T v]x.
+            let row_v = r.mul_vec(e) * (-k);
+            let row_th = Mat3::skew(vb).tmul_vec(e) * (-k);
+            let mut h = [0.0; N];
+            h[IV..IV + 3].copy_from_slice(&row_v.to_array());
+            h[ITH..ITH + 3].copy_from_slice(&row_th.to_array());
+            // The bias is removed with its estimate but not corrected here: the model's errors (wind, an
+            // inexact k) would leak into it. A learned axis has absorbed the bias across it already.
+            let bias = if learn { Vec3::ZERO } else { self.ba };
+            let pred = e.dot(vb * (-k) + bias);
+            ok &= self.update(&h, e.dot(f) - pred, s * s, true);
+        }
+        if ok {
+            self.counters.drag_blocks += 1;
+        } else {
+            self.counters.accel_rejected += 1;
+        }
+    }
+
+    /// Initial roll and pitch from one specific force (body) at rest, keeping the yaw.
+    pub(super) fn align_tilt(&mut self, f: Vec3) {
+        if !f.is_finite() || (f.norm() - GRAVITY).abs() > 2.0 {
+            return;
+        }
+        let roll = libm::atan2f(f.y, f.z);
+        let pitch = libm::atan2f(-f.x, libm::sqrtf(f.y * f.y + f.z * f.z));
+        let yaw = Attitude::from_world_from_body(&self.q.to_mat3()).yaw;
+        self.q = Quat::from_mat3(&Attitude::new(roll, pitch, yaw).world_from_body());
+        let var = self.params.initial_tilt_sigma_rad * self.params.initial_tilt_sigma_rad;
+        for k in 0..2 {
+            self.cov[ITH + k][ITH + k] = var;
+        }
+    }
+}

@@ -1,0 +1,398 @@
+//! What the IMU alone says about the vehicle's motion: still, moved by hand, or carried by its rotors.
+//!
+//! The estimator needs this to choose the accelerometer's model (see `docs/architecture.md`, "State
+//! estimation"):
+//!
+//! - **still** (on the floor, on a table): the specific force is gravity, the velocity and the angular rate
+//!   are zero; the ground constraint and the gyro-bias update apply. Being disarmed is not enough: a vehicle
+//!   carried by hand, or an imported log recorded before a take-off, is disarmed and moving;
+//! - **gravity-dominated** (carried, handled): the specific force is gravity plus an acceleration that
+//!   averages out; a weak gravity update applies;
+//! - **thrust-borne** (flying): the specific force stays along the rotors' thrust axis, whatever the tilt,
+//!   so gravity cannot be read from it; the rotor-drag model applies instead.
+//!
+//! Samples are summed into blocks (`block_s`, 50 ms by default); the last `window_blocks` block means form
+//! the window. The vehicle is still when the block means of the angular rate and of the specific force stay
+//! within tolerances of their window means and the specific force's magnitude is that of gravity (like the
+//! at-rest checks of the PX4 and ArduPilot land detectors, which also test the rates and accelerations
+//! against thresholds over a window).
+//!
+//! The two moving cases are told apart by where the specific force's direction stays fixed: a rigid body
+//! that does not accelerate much sees gravity, fixed in the world, so the direction turns in the body as the
+//! body turns; a multirotor sees its thrust, fixed in the body, so the direction turns in the world instead.
+//! With `u_k` the block's mean direction in the body and `R_k` the estimated attitude, the RMS spreads of
+//! `u_k` and of `R_k u_k` (exponentially weighted over `classify_window_s`) are compared once the body's
+//! tilt has changed by more than `classify_min_tilt_rad` RMS; with less the previous class is kept. A body
+//! spread beyond what drag and vibration give a flying vehicle (`classify_body_spread_max`) is a shaking
+//! hand.
+use crate::GRAVITY;
+use crate::estimator::ImuSample;
+use geometry::{Quat, Vec3};
+
+/// Most blocks a window can hold.
+pub const MAX_WINDOW_BLOCKS: usize = 16;
+
+/// Thresholds of the motion detector.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MotionParams {
+    /// Length of one block of samples (s).
+    pub block_s: f32,
+    /// Blocks in the window (at most 16).
+    pub window_blocks: u8,
+    /// Still: largest deviation of a block's mean angular rate from the window's mean (rad/s).
+    pub still_gyro_rad_s: f32,
+    /// Still: largest deviation of a block's mean specific force from the window's mean (m/s^2).
+    pub still_accel_m_s2: f32,
+    /// Still: largest difference between the window's mean specific force magnitude and gravity (m/s^2).
+    pub still_norm_m_s2: f32,
+    /// Still: largest window-mean angular rate once the estimated gyro bias is removed (rad/s); a steady
+    /// rotation slower than this is indistinguishable from a bias.
+    pub still_rate_max_rad_s: f32,
+    /// Time constant of the statistics that tell a hand-held from a flying vehicle (s).
+    pub classify_window_s: f32,
+    /// Smallest RMS tilt change over that time that can tell them apart (rad).
+    pub classify_min_tilt_rad: f32,
+    /// Largest RMS spread of the specific force's direction in the body for a flying vehicle (its drag and
+    /// vibration); a hand-held one that shakes more is carried, whatever the world spread.
+    pub classify_body_spread_max: f32,
+}
+
+impl Default for MotionParams {
+    fn default() -> Self {
+        Self {
+            block_s: 0.05,
+            window_blocks: 8,
+            still_gyro_rad_s: 0.02,
+            still_accel_m_s2: 0.3,
+            still_norm_m_s2: 0.5,
+            still_rate_max_rad_s: 0.2,
+            classify_window_s: 2.0,
+            classify_min_tilt_rad: 0.015,
+            classify_body_spread_max: 0.05,
+        }
+    }
+}
+
+impl MotionParams {
+    pub(crate) fn validate(&self) -> Result<(), crate::params::ParamError> {
+        use crate::params::{ParamError, check};
+        check(
+            self.block_s >= 0.005 && self.block_s <= 0.5,
+            "estimator.motion.block_s",
+            "must lie in [0.005, 0.5] s",
+        )?;
+        check(
+            self.window_blocks >= 2 && self.window_blocks as usize <= MAX_WINDOW_BLOCKS,
+            "estimator.motion.window_blocks",
+            "must lie in 2..=16",
+        )?;
+        for (v, field) in [
+            (self.still_gyro_rad_s, "estimator.motion.still_gyro_rad_s"),
+            (self.still_accel_m_s2, "estimator.motion.still_accel_m_s2"),
+            (self.still_norm_m_s2, "estimator.motion.still_norm_m_s2"),
+            (self.still_rate_max_rad_s, "estimator.motion.still_rate_max_rad_s"),
+            (self.classify_window_s, "estimator.motion.classify_window_s"),
+            (self.classify_min_tilt_rad, "estimator.motion.classify_min_tilt_rad"),
+            (self.classify_body_spread_max, "estimator.motion.classify_body_spread_max"),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v < 10.0) {
+                return Err(ParamError { field, problem: "must lie in (0, 10)" });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How the vehicle moves.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum MotionClass {
+    /// Not yet known (too few samples, or moving without a tilt change that tells).
+    #[default]
+    Unknown,
+    /// At rest.
+    Still,
+    /// Moving, the specific force dominated by gravity (carried by hand).
+    GravityDominated,
+    /// Moving, the specific force along the thrust axis (flying).
+    ThrustBorne,
+}
+
+/// One finished block of samples.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Block {
+    /// Time of its last sample (us).
+    pub end_us: u64,
+    /// Samples in it.
+    pub samples: u32,
+    /// Mean angular rate (body, rad/s, bias not removed).
+    pub mean_gyro: Vec3,
+    /// Mean specific force (body, m/s^2, bias not removed).
+    pub mean_accel: Vec3,
+}
+
+/// What the detector says when a block ends.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotionReport {
+    /// The block that ended.
+    pub block: Block,
+    /// The class after it.
+    pub class: MotionClass,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct Entry {
+    gyro: Vec3,
+    accel: Vec3,
+}
+
+/// The detector: blocks of samples, a window of block means, the class.
+#[derive(Clone, Debug)]
+pub struct MotionDetector {
+    params: MotionParams,
+    sum_gyro: Vec3,
+    sum_accel: Vec3,
+    n: u32,
+    start_us: u64,
+    last_us: Option<u64>,
+    ring: [Entry; MAX_WINDOW_BLOCKS],
+    len: usize,
+    head: usize,
+    class: MotionClass,
+    spread: Spread,
+}
+
+/// Exponentially weighted first and second moments of the block directions: the specific force in the body
+/// (`u`), in the world (`R u`), and the world's up in the body (the tilt).
+#[derive(Clone, Copy, Debug, Default)]
+struct Spread {
+    blocks: u32,
+    u: Vec3,
+    uu: f32,
+    w: Vec3,
+    ww: f32,
+    up: Vec3,
+    upup: f32,
+}
+
+impl Spread {
+    fn add(&mut self, a: f32, u: Vec3, w: Vec3, up: Vec3) {
+        let a = if self.blocks == 0 { 1.0 } else { a.max(1.0 / (self.blocks + 1) as f32) };
+        self.blocks = self.blocks.saturating_add(1);
+        let mix = |m: &mut Vec3, mm: &mut f32, x: Vec3| {
+            *m = *m + (x - *m) * a;
+            *mm += (x.norm_sq() - *mm) * a;
+        };
+        mix(&mut self.u, &mut self.uu, u);
+        mix(&mut self.w, &mut self.ww, w);
+        mix(&mut self.up, &mut self.upup, up);
+    }
+
+    /// RMS spreads: body, world, tilt.
+    fn rms(&self) -> (f32, f32, f32) {
+        let r = |m: Vec3, mm: f32| libm::sqrtf((mm - m.norm_sq()).max(0.0));
+        (r(self.u, self.uu), r(self.w, self.ww), r(self.up, self.upup))
+    }
+}
+
+impl MotionDetector {
+    /// A detector with no samples.
+    pub fn new(params: MotionParams) -> Self {
+        Self {
+            params,
+            sum_gyro: Vec3::ZERO,
+            sum_accel: Vec3::ZERO,
+            n: 0,
+            start_us: 0,
+            last_us: None,
+            ring: [Entry::default(); MAX_WINDOW_BLOCKS],
+            len: 0,
+            head: 0,
+            class: MotionClass::Unknown,
+            spread: Spread::default(),
+        }
+    }
+
+    /// The current class.
+    pub fn class(&self) -> MotionClass {
+        self.class
+    }
+
+    fn block_us(&self) -> u64 {
+        (self.params.block_s * 1e6) as u64
+    }
+
+    /// Adds one IMU sample with the estimator's attitude after it and its gyro bias; returns a report when
+    /// the sample ends a block.
+    pub fn push(&mut self, s: &ImuSample, q: &Quat, gyro_bias: Vec3) -> Option<MotionReport> {
+        let block_us = self.block_us();
+        // A gap of more than two blocks: what came before says nothing about now.
+        if self.last_us.is_some_and(|l| s.time_us > l + 2 * block_us) {
+            self.len = 0;
+            self.n = 0;
+            self.class = MotionClass::Unknown;
+            self.spread = Spread::default();
+        }
+        self.last_us = Some(s.time_us);
+        if self.n == 0 {
+            self.start_us = s.time_us;
+            self.sum_gyro = Vec3::ZERO;
+            self.sum_accel = Vec3::ZERO;
+        }
+        self.sum_gyro += Vec3::from_array(s.gyro_rad_s);
+        self.sum_accel += Vec3::from_array(s.accel_m_s2);
+        self.n += 1;
+        if s.time_us < self.start_us + block_us - block_us / 100 {
+            return None;
+        }
+        let inv = 1.0 / self.n as f32;
+        let block = Block {
+            end_us: s.time_us,
+            samples: self.n,
+            mean_gyro: self.sum_gyro * inv,
+            mean_accel: self.sum_accel * inv,
+        };
+        self.n = 0;
+        self.ring[self.head] = Entry { gyro: block.mean_gyro, accel: block.mean_accel };
+        let u = block.mean_accel.normalized().unwrap_or(Vec3::Z);
+        let alpha = self.params.block_s / self.params.classify_window_s;
+        self.spread.add(alpha, u, q.rotate(u), q.inverse_rotate(Vec3::Z));
+        self.head = (self.head + 1) % MAX_WINDOW_BLOCKS;
+        let window = self.params.window_blocks as usize;
+        self.len = (self.len + 1).min(window);
+        if self.len == window {
+            self.class = self.classify(gyro_bias);
+        }
+        Some(MotionReport { block, class: self.class })
+    }
+
+    fn entries(&self) -> impl Iterator<Item = &Entry> {
+        (0..self.len).map(move |k| &self.ring[(self.head + MAX_WINDOW_BLOCKS - 1 - k) % MAX_WINDOW_BLOCKS])
+    }
+
+    fn classify(&self, gyro_bias: Vec3) -> MotionClass {
+        let p = &self.params;
+        let inv = 1.0 / self.len as f32;
+        let (mut mg, mut ma) = (Vec3::ZERO, Vec3::ZERO);
+        for e in self.entries() {
+            mg += e.gyro;
+            ma += e.accel;
+        }
+        mg = mg * inv;
+        ma = ma * inv;
+        let max_dev = |f: &dyn Fn(&Entry) -> f32| self.entries().map(f).fold(0.0f32, f32::max);
+        let still = max_dev(&|e| (e.gyro - mg).norm()) <= p.still_gyro_rad_s
+            && max_dev(&|e| (e.accel - ma).norm()) <= p.still_accel_m_s2
+            && (ma.norm() - GRAVITY).abs() <= p.still_norm_m_s2
+            && (mg - gyro_bias).norm() <= p.still_rate_max_rad_s;
+        if still {
+            return MotionClass::Still;
+        }
+        let keep = match self.class {
+            MotionClass::Still => MotionClass::Unknown,
+            c => c,
+        };
+        // Too early to tell: the spreads cover less than the classification window.
+        if (self.spread.blocks as f32) * p.block_s < p.classify_window_s {
+            return keep;
+        }
+        let (spread_body, spread_world, tilt_change) = self.spread.rms();
+        if tilt_change < p.classify_min_tilt_rad {
+            keep
+        } else if spread_body < 0.5 * spread_world && spread_body < p.classify_body_spread_max {
+            MotionClass::ThrustBorne
+        } else if spread_world < 0.5 * spread_body || spread_body >= p.classify_body_spread_max {
+            MotionClass::GravityDominated
+        } else {
+            keep
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use geometry::frames::Attitude;
+
+    fn sample(t_us: u64, gyro: Vec3, accel: Vec3) -> ImuSample {
+        ImuSample { time_us: t_us, gyro_rad_s: gyro.to_array(), accel_m_s2: accel.to_array() }
+    }
+
+    /// Runs `secs` of 1 kHz samples from `f(t) -> (attitude, gyro, accel)`; returns the last report.
+    fn run(d: &mut MotionDetector, t0: u64, secs: f32, f: impl Fn(f32) -> (Quat, Vec3, Vec3)) -> MotionClass {
+        let n = (secs * 1000.0) as u64;
+        let mut last = d.class();
+        for k in 1..=n {
+            let t = t0 + k * 1000;
+            let (q, g, a) = f(t as f32 * 1e-6);
+            if let Some(r) = d.push(&sample(t, g, a), &q, Vec3::ZERO) {
+                last = r.class;
+            }
+        }
+        last
+    }
+
+    fn level() -> Quat {
+        Quat::from_mat3(&Attitude::default().world_from_body())
+    }
+
+    #[test]
+    fn still_with_noise_and_a_gyro_bias_is_still() {
+        let mut d = MotionDetector::new(MotionParams::default());
+        let mut x = 1u32;
+        let mut noise = move || {
+            x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (x >> 8) as f32 / (1u32 << 24) as f32 - 0.5
+        };
+        let mut last = MotionClass::Unknown;
+        for k in 1..=1000u64 {
+            let g = Vec3::new(0.08 + 0.05 * noise(), 0.02, 0.01 * noise());
+            let a = Vec3::new(0.5 * noise(), 0.5 * noise(), GRAVITY + 0.5 * noise());
+            if let Some(r) = d.push(&sample(k * 1000, g, a), &level(), Vec3::ZERO) {
+                last = r.class;
+            }
+        }
+        assert_eq!(last, MotionClass::Still);
+    }
+
+    #[test]
+    fn a_hand_held_tilting_motion_is_gravity_dominated_and_a_flying_one_thrust_borne() {
+        // Rocking in roll at 1 Hz, 8 deg: by hand, the accelerometer reads gravity in the body.
+        let amp = 8f32.to_radians();
+        let w = core::f32::consts::TAU;
+        let att = |t: f32| Attitude::new(amp * libm::sinf(w * t), 0.0, 0.0);
+        let mut d = MotionDetector::new(MotionParams::default());
+        let hand = run(&mut d, 0, 3.0, |t| {
+            let r = att(t).world_from_body();
+            let g = Vec3::new(amp * w * libm::cosf(w * t), 0.0, 0.0);
+            (Quat::from_mat3(&r), g, r.tmul_vec(Vec3::new(0.0, 0.0, GRAVITY)))
+        });
+        assert_eq!(hand, MotionClass::GravityDominated);
+        // The same rocking in flight: the thrust stays along body z.
+        let mut d = MotionDetector::new(MotionParams::default());
+        let fly = run(&mut d, 0, 3.0, |t| {
+            let r = att(t).world_from_body();
+            let g = Vec3::new(amp * w * libm::cosf(w * t), 0.0, 0.0);
+            (Quat::from_mat3(&r), g, Vec3::new(0.0, 0.0, GRAVITY))
+        });
+        assert_eq!(fly, MotionClass::ThrustBorne);
+        // Hovering without a tilt change cannot tell: the class is kept.
+        let kept =
+            run(&mut d, 3_000_000, 2.0, |_| (level(), Vec3::new(0.0, 0.0, 0.3), Vec3::new(0.0, 0.0, 9.0)));
+        assert_eq!(kept, MotionClass::ThrustBorne);
+    }
+
+    #[test]
+    fn a_gap_forgets_the_window() {
+        let mut d = MotionDetector::new(MotionParams::default());
+        let still = run(&mut d, 0, 1.0, |_| (level(), Vec3::ZERO, Vec3::new(0.0, 0.0, GRAVITY)));
+        assert_eq!(still, MotionClass::Still);
+        let r = d.push(&sample(5_000_000, Vec3::ZERO, Vec3::new(0.0, 0.0, GRAVITY)), &level(), Vec3::ZERO);
+        assert!(r.is_none());
+        assert_eq!(d.class(), MotionClass::Unknown);
+    }
+}
