@@ -21,7 +21,7 @@ pub fn sat(x: f32, b: f32) -> f32 {
 
 /// Where the vehicle should be.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Setpoint {
     /// Position, world frame (m).
@@ -36,7 +36,7 @@ pub struct Setpoint {
 
 /// Total thrust and body torques.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Demand {
     /// Thrust along body z (N).
@@ -47,7 +47,7 @@ pub struct Demand {
 
 /// What the laws did this step.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LawStatus {
     /// Tilt the position and velocity terms (plus feed-forward and trim) ask for: roll, pitch (rad).
@@ -85,14 +85,21 @@ pub fn bounded_axis(
 pub struct Controller {
     gains: ControlGains,
     vehicle: VehicleParams,
+    drag_per_s: f32,
     altitude_integral: f32,
     trim: [f32; 2],
 }
 
 impl Controller {
-    /// A controller with zeroed integrals.
+    /// A controller with zeroed integrals and no drag feed-forward.
     pub fn new(gains: ControlGains, vehicle: VehicleParams) -> Self {
-        Self { gains, vehicle, altitude_integral: 0.0, trim: [0.0; 2] }
+        Self::with_drag(gains, vehicle, 0.0)
+    }
+
+    /// A controller whose feed-forward also overcomes the rotors' drag at the reference velocity:
+    /// `drag_per_s` is the drag model's coefficient (`estimator.drag_coeff_per_s`, 1/s).
+    pub fn with_drag(gains: ControlGains, vehicle: VehicleParams, drag_per_s: f32) -> Self {
+        Self { gains, vehicle, drag_per_s, altitude_integral: 0.0, trim: [0.0; 2] }
     }
 
     /// Clears the integrals (on the ground).
@@ -121,7 +128,8 @@ impl Controller {
         let de_w = est.velocity_m_s - sp.velocity_m_s;
         let e_n = WORLD_FROM_NAV.tmul_vec(e_w);
         let de_n = WORLD_FROM_NAV.tmul_vec(de_w);
-        let a_n = WORLD_FROM_NAV.tmul_vec(sp.accel_m_s2);
+        // The reference acceleration plus what overcomes the rotors' drag at the reference velocity.
+        let a_n = WORLD_FROM_NAV.tmul_vec(sp.accel_m_s2 + sp.velocity_m_s * self.drag_per_s);
         let (sy, cy) = geometry::trig::sin_cos(yaw);
         let head = |x: Vec3| Vec3::new(cy * x.x + sy * x.y, -sy * x.x + cy * x.y, x.z);
         let (e_h, de_h, a_h) = (head(e_n), head(de_n), head(a_n));

@@ -36,9 +36,19 @@ use trajectory::{Move, Sweep};
 /// Standard gravity (m/s^2).
 pub const GRAVITY: f32 = 9.80665;
 
+/// How far below the floor the landing's height reference goes on descending (m): far enough that the
+/// altitude law's thrust reaches idle on the floor, whatever the height estimate's drift.
+pub const LANDING_DEPTH_BELOW_FLOOR_M: f32 = 10.0;
+
+/// Landing: a vertical speed above minus this counts as not descending (m/s).
+pub const GROUND_CONTACT_SPEED_M_S: f32 = 0.05;
+
+/// Time constant of the specific force's magnitude that the land detector reads (s).
+pub const ACCEL_FILTER_S: f32 = 0.1;
+
 /// An operator command (from the ground station over the radio link).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Command {
     /// Arm (motors to idle); refused unless disarmed, level, sensors healthy.
@@ -57,7 +67,7 @@ pub enum Command {
 
 /// Flight mode.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FlightMode {
     /// Motors off.
@@ -95,7 +105,7 @@ impl FlightMode {
 
 /// Why a failsafe acted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Failsafe {
     /// Vision fixes stale: holding on the IMU.
@@ -114,7 +124,7 @@ pub enum Failsafe {
 
 /// Why a command was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Refusal {
     /// Not possible in the current mode.
@@ -131,7 +141,7 @@ pub enum Refusal {
 
 /// The outcome of the last command.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum CommandResult {
     /// Carried out.
@@ -142,7 +152,7 @@ pub enum CommandResult {
 
 /// The answer to a parameter request.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ParamReply {
     /// Which parameter.
@@ -155,7 +165,7 @@ pub struct ParamReply {
 
 /// Outcome of a parameter request.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ParamOutcome {
     /// Read, or changed.
@@ -191,7 +201,7 @@ pub struct ControlInputs<'a> {
 
 /// Status of the flight code.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Status {
     /// Mode.
@@ -218,7 +228,7 @@ pub struct Status {
 
 /// What one step returns.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ControlOutputs {
     /// Rotor speed commands M1..M4 (rad/s); zeros when the motors are off.
@@ -255,6 +265,9 @@ pub struct ControlCore {
     settled_since_us: Option<u64>,
     motors: [f32; 4],
     fault_latched: bool,
+    last_thrust_n: f32,
+    contact_since_us: Option<u64>,
+    accel_lp: Option<f32>,
 }
 
 impl ControlCore {
@@ -271,7 +284,11 @@ impl ControlCore {
         Self {
             params,
             estimator: Estimator::new(params.estimator, home),
-            controller: Controller::new(params.gains, params.vehicle),
+            controller: Controller::with_drag(
+                params.gains,
+                params.vehicle,
+                params.estimator.drag_coeff_per_s,
+            ),
             mode: FlightMode::Disarmed,
             failsafe: None,
             last_command: None,
@@ -290,6 +307,9 @@ impl ControlCore {
             settled_since_us: None,
             motors: [0.0; 4],
             fault_latched: false,
+            last_thrust_n: 0.0,
+            contact_since_us: None,
+            accel_lp: None,
         }
     }
 
@@ -318,7 +338,7 @@ impl ControlCore {
         match self.params.with(id, value) {
             Ok(p) => {
                 self.params = p;
-                self.controller = Controller::new(p.gains, p.vehicle);
+                self.controller = Controller::with_drag(p.gains, p.vehicle, p.estimator.drag_coeff_per_s);
                 self.yaw_d = p.trajectory.yaw_d_rad;
                 ParamReply { id, value: p.get(id), outcome: ParamOutcome::Ok }
             }
@@ -415,8 +435,11 @@ impl ControlCore {
         self.sweep = None;
         self.hold.x = est.position_m.x;
         self.hold.y = est.position_m.y;
-        // Aim below the ground so that the descent does not stop short of touchdown.
-        self.start_vertical(est.position_m.z, t.ground_height_m - 0.3, t.landing_speed_m_s, now);
+        // The descent does not stop at the floor: after touchdown the reference goes on down, the altitude
+        // law's thrust falls to idle, and the land detector (thrust, specific force and rates; not the height
+        // estimate, which vision no longer corrects near the floor) ends the flight.
+        let floor = t.ground_height_m - LANDING_DEPTH_BELOW_FLOOR_M;
+        self.start_vertical(est.position_m.z, floor, t.landing_speed_m_s, now);
         self.touchdown_since_us = None;
     }
 
@@ -430,15 +453,29 @@ impl ControlCore {
 
         // Estimation: IMU prediction, covariance, measurements.
         let mut imu_rejected = 0u8;
+        let (mut accel_sum, mut n_ok) = (Vec3::ZERO, 0u32);
         for s in inp.imu {
             if self.estimator.predict(s) {
                 self.last_imu_us = Some(s.time_us);
                 self.first_imu_us.get_or_insert(s.time_us);
+                accel_sum += Vec3::from_array(s.accel_m_s2);
+                n_ok += 1;
             } else {
                 imu_rejected = imu_rejected.saturating_add(1);
             }
         }
         self.estimator.propagate_covariance(now);
+        // The specific force's magnitude, low-passed over 0.1 s (one step's samples are too noisy to tell a
+        // vehicle the floor carries from one that accelerates).
+        if n_ok > 0 {
+            let f = (accel_sum * (1.0 / n_ok as f32)).norm();
+            let a = (dt / ACCEL_FILTER_S).clamp(0.0, 1.0);
+            self.accel_lp = Some(match self.accel_lp {
+                Some(lp) if dt > 0.0 => lp + (f - lp) * a,
+                _ => f,
+            });
+        }
+        let step_accel = self.accel_lp;
         let imu_ok =
             self.last_imu_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.imu_timeout_s);
         // The accelerometer's model: the flight mode says whether the vehicle flies; on the ground, at rest
@@ -558,14 +595,17 @@ impl ControlCore {
                         self.settled_since_us = None;
                     }
                 } else {
-                    // Touchdown: near the ground and no longer descending although the reference keeps going
-                    // down, for half a second. (Vision usually loses the line in the last decimetres, so the
-                    // height is the IMU's; the margin covers its drift.)
-                    let down =
-                        est.position_m.z < traj.ground_height_m + 0.15 && est.velocity_m_s.z.abs() < 0.1;
-                    if down {
+                    // The land detector (as PX4's and ArduPilot's): the thrust demand near idle, the specific
+                    // force that of gravity (the floor carries the vehicle: no vertical acceleration) and no
+                    // rotation, for `land_detect_s`. It needs neither vision nor the height estimate.
+                    let ld = &self.params.failsafe;
+                    let weight = self.params.vehicle.mass_kg * GRAVITY;
+                    let resting = self.last_thrust_n < ld.land_thrust_fraction * weight
+                        && step_accel.is_some_and(|f| (f - GRAVITY).abs() < ld.land_accel_tolerance_m_s2)
+                        && est.rates_rad_s.norm() < ld.land_rate_tolerance_rad_s;
+                    if resting {
                         let since = *self.touchdown_since_us.get_or_insert(now);
-                        if now.saturating_sub(since) > 500_000 {
+                        if now.saturating_sub(since) as f32 * 1e-6 >= ld.land_detect_s {
                             self.motors_off(FlightMode::Disarmed);
                         }
                     } else {
@@ -595,7 +635,27 @@ impl ControlCore {
 
         // Laws and mixer.
         let integrate = matches!(self.mode, FlightMode::Hover | FlightMode::Tracking);
-        let (demand, law) = self.controller.update(&est, &sp, dt, integrate, self.motors);
+        let (mut demand, law) = self.controller.update(&est, &sp, dt, integrate, self.motors);
+        // Ground contact while landing: commanded down, not descending, and the floor carrying the vehicle
+        // (the specific force that of gravity). The thrust is then wound down to idle in
+        // `ground_contact_ramp_s`, so that the land detector sees it; a descent again cancels it.
+        if self.mode == FlightMode::Landing {
+            let fs = &self.params.failsafe;
+            let supported = step_accel.is_some_and(|f| (f - GRAVITY).abs() < fs.land_accel_tolerance_m_s2);
+            let stalled = est.velocity_m_s.z > -GROUND_CONTACT_SPEED_M_S && supported;
+            if est.velocity_m_s.z < -3.0 * GROUND_CONTACT_SPEED_M_S {
+                self.contact_since_us = None;
+            } else if stalled {
+                let since = *self.contact_since_us.get_or_insert(now);
+                let t = now.saturating_sub(since) as f32 * 1e-6;
+                let cap =
+                    (1.0 - t / fs.ground_contact_ramp_s).max(0.0) * self.params.vehicle.mass_kg * GRAVITY;
+                demand.thrust_n = demand.thrust_n.min(cap);
+            }
+        } else {
+            self.contact_since_us = None;
+        }
+        self.last_thrust_n = if self.mode.airborne() { demand.thrust_n } else { 0.0 };
         let mut mix = MixerOutput::default();
         self.motors = match self.mode {
             FlightMode::Disarmed | FlightMode::Emergency => [0.0; 4],

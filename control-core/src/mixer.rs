@@ -18,7 +18,7 @@ pub fn signed_rotor_sum(w: [f32; 4]) -> f32 {
 
 /// Rotor speed commands and what had to give.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct MixerOutput {
     /// Commanded rotor speeds M1..M4 (rad/s).

@@ -34,7 +34,7 @@ pub const MAX_WINDOW_BLOCKS: usize = 16;
 
 /// Thresholds of the motion detector.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct MotionParams {
@@ -42,9 +42,11 @@ pub struct MotionParams {
     pub block_s: f32,
     /// Blocks in the window (at most 16).
     pub window_blocks: u8,
-    /// Still: largest deviation of a block's mean angular rate from the window's mean (rad/s).
+    /// Still: largest deviation of a block's mean angular rate from the window's mean (rad/s), beyond three
+    /// times the noise of a block mean (measured within the blocks).
     pub still_gyro_rad_s: f32,
-    /// Still: largest deviation of a block's mean specific force from the window's mean (m/s^2).
+    /// Still: largest deviation of a block's mean specific force from the window's mean (m/s^2), beyond
+    /// three times the noise of a block mean (measured within the blocks).
     pub still_accel_m_s2: f32,
     /// Still: largest difference between the window's mean specific force magnitude and gravity (m/s^2).
     pub still_norm_m_s2: f32,
@@ -108,7 +110,7 @@ impl MotionParams {
 
 /// How the vehicle moves.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum MotionClass {
     /// Not yet known (too few samples, or moving without a tilt change that tells).
@@ -142,12 +144,17 @@ pub struct MotionReport {
     pub block: Block,
     /// The class after it.
     pub class: MotionClass,
+    /// At rest: the whole window's mean angular rate and specific force (body).
+    pub still_window: Option<(Vec3, Vec3)>,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
 struct Entry {
     gyro: Vec3,
     accel: Vec3,
+    /// Standard deviations of the block's means, from the samples' spread within it.
+    gyro_sd: f32,
+    accel_sd: f32,
 }
 
 /// The detector: blocks of samples, a window of block means, the class.
@@ -156,6 +163,8 @@ pub struct MotionDetector {
     params: MotionParams,
     sum_gyro: Vec3,
     sum_accel: Vec3,
+    sq_gyro: f32,
+    sq_accel: f32,
     n: u32,
     start_us: u64,
     last_us: Option<u64>,
@@ -206,6 +215,8 @@ impl MotionDetector {
             params,
             sum_gyro: Vec3::ZERO,
             sum_accel: Vec3::ZERO,
+            sq_gyro: 0.0,
+            sq_accel: 0.0,
             n: 0,
             start_us: 0,
             last_us: None,
@@ -242,9 +253,14 @@ impl MotionDetector {
             self.start_us = s.time_us;
             self.sum_gyro = Vec3::ZERO;
             self.sum_accel = Vec3::ZERO;
+            self.sq_gyro = 0.0;
+            self.sq_accel = 0.0;
         }
-        self.sum_gyro += Vec3::from_array(s.gyro_rad_s);
-        self.sum_accel += Vec3::from_array(s.accel_m_s2);
+        let (g, a) = (Vec3::from_array(s.gyro_rad_s), Vec3::from_array(s.accel_m_s2));
+        self.sum_gyro += g;
+        self.sum_accel += a;
+        self.sq_gyro += g.norm_sq();
+        self.sq_accel += a.norm_sq();
         self.n += 1;
         if s.time_us < self.start_us + block_us - block_us / 100 {
             return None;
@@ -256,8 +272,19 @@ impl MotionDetector {
             mean_gyro: self.sum_gyro * inv,
             mean_accel: self.sum_accel * inv,
         };
+        // The noise of a block mean: the samples' variance within the block (all axes) over their count.
+        let sd_of_mean = |sq: f32, mean: Vec3| {
+            let n = self.n as f32;
+            if self.n < 2 { 0.0 } else { libm::sqrtf(((sq - n * mean.norm_sq()) / (n - 1.0)).max(0.0) / n) }
+        };
+        let entry = Entry {
+            gyro: block.mean_gyro,
+            accel: block.mean_accel,
+            gyro_sd: sd_of_mean(self.sq_gyro, block.mean_gyro),
+            accel_sd: sd_of_mean(self.sq_accel, block.mean_accel),
+        };
         self.n = 0;
-        self.ring[self.head] = Entry { gyro: block.mean_gyro, accel: block.mean_accel };
+        self.ring[self.head] = entry;
         let u = block.mean_accel.normalized().unwrap_or(Vec3::Z);
         let alpha = self.params.block_s / self.params.classify_window_s;
         self.spread.add(alpha, u, q.rotate(u), q.inverse_rotate(Vec3::Z));
@@ -267,7 +294,16 @@ impl MotionDetector {
         if self.len == window {
             self.class = self.classify(gyro_bias);
         }
-        Some(MotionReport { block, class: self.class })
+        let still_window = (self.class == MotionClass::Still).then(|| {
+            let inv = 1.0 / self.len as f32;
+            let (mut g, mut a) = (Vec3::ZERO, Vec3::ZERO);
+            for e in self.entries() {
+                g += e.gyro;
+                a += e.accel;
+            }
+            (g * inv, a * inv)
+        });
+        Some(MotionReport { block, class: self.class, still_window })
     }
 
     fn entries(&self) -> impl Iterator<Item = &Entry> {
@@ -285,8 +321,10 @@ impl MotionDetector {
         mg = mg * inv;
         ma = ma * inv;
         let max_dev = |f: &dyn Fn(&Entry) -> f32| self.entries().map(f).fold(0.0f32, f32::max);
-        let still = max_dev(&|e| (e.gyro - mg).norm()) <= p.still_gyro_rad_s
-            && max_dev(&|e| (e.accel - ma).norm()) <= p.still_accel_m_s2
+        let mean_of = |f: &dyn Fn(&Entry) -> f32| self.entries().map(f).sum::<f32>() * inv;
+        let (gyro_noise, accel_noise) = (mean_of(&|e| e.gyro_sd), mean_of(&|e| e.accel_sd));
+        let still = max_dev(&|e| (e.gyro - mg).norm()) <= p.still_gyro_rad_s + 3.0 * gyro_noise
+            && max_dev(&|e| (e.accel - ma).norm()) <= p.still_accel_m_s2 + 3.0 * accel_noise
             && (ma.norm() - GRAVITY).abs() <= p.still_norm_m_s2
             && (mg - gyro_bias).norm() <= p.still_rate_max_rad_s;
         if still {

@@ -8,7 +8,7 @@ use crate::GRAVITY;
 
 /// A rejected parameter: which field, and what is wrong with it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ParamError {
     /// Dotted path of the field, e.g. `gains.roll.k`.
@@ -37,7 +37,7 @@ fn non_negative(v: f32, field: &'static str) -> Result<(), ParamError> {
 
 /// The airframe, rotors and motors ("+" configuration: M1 front, M2 left, M3 rear, M4 right).
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct VehicleParams {
@@ -126,7 +126,7 @@ impl VehicleParams {
 /// Altitude law (paper eq. 30): `T/m = (g + z''_d - a_z1 e_z' - a_z2 e_z - i_z) / max(cos(theta) cos(phi), c_min)`,
 /// with an optional bounded integral `i_z` (not in the paper).
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct AltitudeGains {
@@ -160,7 +160,7 @@ impl Default for AltitudeGains {
 
 /// Yaw law (paper eq. 31): `tau/J_zz = -a_psi1 psi' - a_psi2 (psi - psi_d)`, bounded.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct YawGains {
@@ -186,7 +186,7 @@ impl Default for YawGains {
 /// leftward error), where `e` is the position error (m), `angle` the tilt (rad) and `u = tau / J` (rad/s^2).
 /// Linear part: `s^4 + k2 s^3 + k1 s^2 + g k4 s + g k3`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SaturatedAxisGains {
@@ -336,7 +336,7 @@ pub enum Axis {
 
 /// All the control gains.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ControlGains {
@@ -407,7 +407,7 @@ impl ControlGains {
 
 /// Noise model and gates of the state estimator.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct EstimatorParams {
@@ -467,7 +467,7 @@ pub struct EstimatorParams {
 impl Default for EstimatorParams {
     fn default() -> Self {
         Self {
-            gyro_noise: 2e-3,
+            gyro_noise: 1e-3,
             accel_noise: 0.03,
             gyro_bias_walk: 3e-5,
             accel_bias_walk: 3e-4,
@@ -564,7 +564,7 @@ impl EstimatorParams {
 
 /// The mission: take-off, the sweep of paper section 5.2, landing.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct TrajectoryParams {
@@ -655,7 +655,7 @@ impl TrajectoryParams {
 
 /// Failsafe timings and limits.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FailsafeParams {
@@ -671,6 +671,16 @@ pub struct FailsafeParams {
     pub max_arming_tilt_rad: f32,
     /// Tilt at which the vehicle is considered lost: motors off (rad).
     pub crash_tilt_rad: f32,
+    /// Land detector: the thrust demand below this fraction of the weight...
+    pub land_thrust_fraction: f32,
+    /// ... the specific force's magnitude within this of gravity (m/s^2)...
+    pub land_accel_tolerance_m_s2: f32,
+    /// ... and the angular rate below this (rad/s)...
+    pub land_rate_tolerance_rad_s: f32,
+    /// ... for this long: landed, motors off (s).
+    pub land_detect_s: f32,
+    /// Landing: once the floor carries the vehicle, the thrust is wound down to idle over this time (s).
+    pub ground_contact_ramp_s: f32,
 }
 
 impl Default for FailsafeParams {
@@ -682,6 +692,11 @@ impl Default for FailsafeParams {
             imu_timeout_s: 0.05,
             max_arming_tilt_rad: 0.15,
             crash_tilt_rad: 1.2,
+            land_thrust_fraction: 0.3,
+            land_accel_tolerance_m_s2: 1.0,
+            land_rate_tolerance_rad_s: 0.3,
+            land_detect_s: 0.5,
+            ground_contact_ramp_s: 1.0,
         }
     }
 }
@@ -701,13 +716,38 @@ impl FailsafeParams {
             self.crash_tilt_rad > 0.5 && self.crash_tilt_rad < 3.0,
             "failsafe.crash_tilt_rad",
             "must lie in (0.5, 3) rad",
+        )?;
+        check(
+            self.land_thrust_fraction > 0.0 && self.land_thrust_fraction < 0.9,
+            "failsafe.land_thrust_fraction",
+            "must lie in (0, 0.9)",
+        )?;
+        check(
+            self.land_accel_tolerance_m_s2 > 0.0 && self.land_accel_tolerance_m_s2 < 5.0,
+            "failsafe.land_accel_tolerance_m_s2",
+            "must lie in (0, 5) m/s^2",
+        )?;
+        check(
+            self.land_rate_tolerance_rad_s > 0.0 && self.land_rate_tolerance_rad_s < 3.0,
+            "failsafe.land_rate_tolerance_rad_s",
+            "must lie in (0, 3) rad/s",
+        )?;
+        check(
+            self.land_detect_s > 0.0 && self.land_detect_s <= 5.0,
+            "failsafe.land_detect_s",
+            "must lie in (0, 5] s",
+        )?;
+        check(
+            self.ground_contact_ramp_s > 0.0 && self.ground_contact_ramp_s <= 5.0,
+            "failsafe.ground_contact_ramp_s",
+            "must lie in (0, 5] s",
         )
     }
 }
 
 /// Everything the flight code needs.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FlightParams {
     /// Airframe and motors.
@@ -745,7 +785,7 @@ impl FlightParams {
 
 /// A parameter that can be read and changed over the radio link (one `f32` each; counts are rounded).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
 pub enum ParamId {

@@ -6,7 +6,7 @@
 
 /// One piece `b0 + b1 t + b2 t^2` of a profile, valid for `t` in `[0, duration_s]`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Segment {
     /// Constant term (m).
@@ -29,7 +29,7 @@ impl Segment {
 /// A rest-to-rest move from `from` to `to`: three segments (accelerate, cruise, decelerate; the cruise is
 /// empty for short moves).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Move {
     /// The three segments.
@@ -77,7 +77,7 @@ impl Move {
 
 /// The back-and-forth sweep along x.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Sweep {
     range: [f32; 2],

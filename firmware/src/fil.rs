@@ -33,8 +33,13 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
             }
             Some(Ok(FilToFc::Step(s))) => {
                 let t0 = board.cycles();
-                let out =
-                    stack.step(&StepInput { time_us: s.time_us, imu: &s.imu, mag: s.mag, uplink: &uplink });
+                let out = stack.step(&StepInput {
+                    time_us: s.time_us,
+                    imu: &s.imu,
+                    mag: s.mag,
+                    uplink: &uplink,
+                    landed: s.landed,
+                });
                 let cost = board.cycles_since(t0);
                 uplink.clear();
                 stats.record_step(cost);

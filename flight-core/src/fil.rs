@@ -17,7 +17,7 @@ use crate::StepReport;
 pub const MAX_IMU_PER_STEP: usize = 4;
 
 /// One control period's sensors.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SensorStep {
     /// Time of the step (us, vehicle clock).
@@ -32,7 +32,7 @@ pub struct SensorStep {
 
 /// Simulator to flight computer.
 #[allow(clippy::large_enum_variant)]
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FilToFc {
     /// A radio message from the ground station, delivered before the next step.
@@ -45,7 +45,7 @@ pub enum FilToFc {
 
 /// Flight computer to simulator.
 #[allow(clippy::large_enum_variant)]
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FcToFil {
     /// Booted, flight stack built, waiting for steps.

@@ -57,7 +57,7 @@ impl Default for FlowConfig {
 }
 
 /// What became of a flow measurement.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FlowOutcome {
     /// The ground station found no flow.
@@ -80,7 +80,9 @@ pub enum FlowOutcome {
 }
 
 /// Counters of the flow measurements received.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, postcard_schema::Schema,
+)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FlowCounters {
     /// Measurements received.

@@ -118,7 +118,9 @@ pub enum FrameOutcome {
 }
 
 /// Counters of the vision frames the stack received.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, postcard_schema::Schema,
+)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct VisionCounters {
     /// Frames received.
@@ -167,7 +169,7 @@ pub struct StepOutput {
 
 /// What a step returns, without the pose of this step's frame: what the simulator needs from a flight
 /// computer, and what the firmware in the loop sends back each step (small enough for one link frame).
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct StepReport {
     /// Control outputs: rotor speeds, status, estimate, setpoint.

@@ -24,7 +24,7 @@ pub const BODY_FROM_DOWN_CAMERA: Mat3 = Mat3 { m: [[0.0, -1.0, 0.0], [-1.0, 0.0,
 
 /// Roll, pitch and yaw (radians) of a vehicle attitude, measured from the navigation frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Attitude {
     /// Rotation about body x (rad).

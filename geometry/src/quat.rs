@@ -5,7 +5,7 @@ use crate::{Mat3, Vec3};
 /// `q.rotate(v)` maps a vector from the frame the quaternion describes (e.g. body) into the reference
 /// frame (e.g. world): `q` is "world from body".
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Quat {
     /// Scalar part.

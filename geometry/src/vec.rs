@@ -2,7 +2,7 @@ use core::ops::{Add, AddAssign, Div, Index, Mul, Neg, Sub, SubAssign};
 
 /// A 2-vector of f32.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Vec2 {
     /// First component.
@@ -13,7 +13,7 @@ pub struct Vec2 {
 
 /// A 3-vector of f32.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Vec3 {
     /// First component.

@@ -23,7 +23,7 @@ use vision_core::LineObservation;
 use vision_core::flow::{FlowStats, NoFlowReason};
 
 /// One forward-camera frame as measured by the ground station.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct VisionMeasurement {
     /// Capture time of the frame (mid-exposure, us).
@@ -35,7 +35,7 @@ pub struct VisionMeasurement {
 }
 
 /// The optical flow of one downward-camera frame pair as measured by the ground station.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FlowMeasurement {
     /// Capture time of the earlier frame (mid-exposure, us).
@@ -49,7 +49,7 @@ pub struct FlowMeasurement {
 }
 
 /// Ground station to vehicle.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Uplink {
     /// A forward-camera frame's measurement.
@@ -72,7 +72,7 @@ pub enum Uplink {
 }
 
 /// Vehicle to ground station: what the flight code is doing.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Telemetry {
     /// Time of the control step (us).
@@ -96,7 +96,7 @@ pub struct Telemetry {
 /// Vehicle to ground station. (Messages live on the stack and are encoded at once: no boxing without an
 /// allocator, hence the size difference between variants.)
 #[allow(clippy::large_enum_variant)]
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Downlink {
     /// Periodic telemetry.

@@ -172,6 +172,30 @@ fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
                 ),
             });
         }
+        LogRecord::Reference(r) => {
+            let [w, x, y, z] = r.q_world_body;
+            let q = geometry::Quat { w, x, y, z };
+            let att = Attitude::from_world_from_body(&q.to_mat3());
+            out.push(Msg {
+                topic: "/reference/pose",
+                schema: "foxglove.PoseInFrame",
+                time_us: r.time_us,
+                value: pose_in_frame(r.time_us, "world", r.position_m.unwrap_or([0.0; 3]), q),
+            });
+            out.push(Msg {
+                topic: "/reference",
+                schema: "wlq.Reference",
+                time_us: r.time_us,
+                value: with_time(
+                    r.time_us,
+                    json!({"attitude_deg": {"roll": att.roll.to_degrees(), "pitch": att.pitch.to_degrees(),
+                                            "yaw": att.yaw.to_degrees()},
+                           "q_world_body": r.q_world_body,
+                           "position_m": r.position_m.map(xyz),
+                           "airborne": r.airborne}),
+                ),
+            });
+        }
         LogRecord::Frame(_) => {}
     }
 }

@@ -14,10 +14,8 @@
 //! sends after it (`flight_core::telemetry`), plus the camera frames the ground station measured and the
 //! simulator's ground truth.
 use anyhow::{Context, Result, bail};
-use control_core::estimator::ImuSample;
 use flight_core::StepReport;
 use flight_core::fil::SensorStep;
-use geometry::Vec3;
 use protocol::frame::{FrameError, WIRE_VERSION, cobs_decode_in_place, cobs_encode, crc16, decode_raw};
 use protocol::{Downlink, Uplink};
 use serde::{Deserialize, Serialize};
@@ -27,7 +25,7 @@ use std::path::Path;
 /// The file's first bytes.
 pub const LOG_MAGIC: &[u8; 6] = b"WLQLOG";
 /// Version of the log layout (header and record kinds).
-pub const LOG_FORMAT_VERSION: u16 = 2;
+pub const LOG_FORMAT_VERSION: u16 = 3;
 /// The longest record frame a reader accepts (a raw 4K RGB frame fits): longer ones are damage.
 pub const MAX_LOG_FRAME: usize = 64 << 20;
 /// File name `sim-host fly` writes in its output directory.
@@ -35,7 +33,7 @@ pub const LOG_FILE: &str = "flight.log";
 
 /// One record.
 #[allow(clippy::large_enum_variant)]
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
 pub enum LogRecord {
     /// A radio message delivered to the flight stack before the next step.
     Link(Uplink),
@@ -59,6 +57,22 @@ pub enum LogRecord {
     /// A message the vehicle sent down the radio link after the step before it: telemetry, command
     /// acknowledgement, parameter reply (the firmware's own records, `flight_core::telemetry`).
     Downlink(Downlink),
+    /// A recorded reference of the vehicle's state from another source than this flight code (an imported
+    /// dataset's ground truth, another estimator's output), what `replay --summary` compares against.
+    Reference(ReferenceState),
+}
+
+/// A reference state at a time, in this project's frames (world `W`, body FLU).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
+pub struct ReferenceState {
+    /// Time on the log's clock (us).
+    pub time_us: u64,
+    /// Attitude, world from body, unit quaternion `[w, x, y, z]`.
+    pub q_world_body: [f32; 4],
+    /// Position in the world frame (m), when the reference has one.
+    pub position_m: Option<[f32; 3]>,
+    /// Whether the recorded vehicle was flying, when the source says (a land detector).
+    pub airborne: Option<bool>,
 }
 
 impl LogRecord {
@@ -71,6 +85,7 @@ impl LogRecord {
             LogRecord::Truth { .. } => "truth",
             LogRecord::Frame(_) => "frame",
             LogRecord::Downlink(_) => "downlink",
+            LogRecord::Reference(_) => "reference",
         }
     }
 }
@@ -79,7 +94,7 @@ impl LogRecord {
 pub const FRAME_RECORD_INDEX: u8 = 4;
 
 /// Which camera took a frame.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, postcard_schema::Schema)]
 pub enum CameraId {
     /// The forward camera (the line on the wall; RGB).
     Forward,
@@ -88,7 +103,7 @@ pub enum CameraId {
 }
 
 /// How a frame's pixels are stored.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, postcard_schema::Schema)]
 pub enum FrameEncoding {
     /// Packed 8-bit pixels, row-major (RGB: R, G, B).
     Raw,
@@ -108,7 +123,7 @@ pub enum FramePolicy {
 }
 
 /// One camera frame.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
 pub struct CameraFrame {
     /// Which camera.
     pub camera: CameraId,
@@ -262,77 +277,22 @@ pub struct LogHeader {
     pub camera: String,
     /// The flight computer (`sil` or the firmware ELF in QEMU).
     pub flight_computer: String,
+    /// What the `Reference` records are (empty when there are none), e.g. `EuRoC ground truth
+    /// (state_groundtruth_estimate0)` or `PX4 EKF2 vehicle_attitude`.
+    #[serde(default)]
+    pub reference: String,
+    /// Whether the reference's yaw is absolute (comparable without removing the initial offset): true when
+    /// both it and the flight code see an absolute heading (a magnetometer).
+    #[serde(default)]
+    pub reference_yaw_absolute: bool,
 }
 
-/// A fingerprint of the record encoding: FNV-1a (64 bits) of the postcard bytes of one sample of each
-/// record kind, with every field set. Adding, removing, reordering or retyping a field changes those bytes.
+/// A fingerprint of the record layout: postcard-schema's 64-bit key (FNV-1a over the path and the types'
+/// schema: every type's name, its fields' names and types, its variants) of [`LogRecord`]. Adding, removing,
+/// reordering, renaming or retyping a field of any record changes it; values never enter it.
 pub fn schema_hash() -> String {
-    let imu = ImuSample { time_us: 1, gyro_rad_s: [0.5, -0.25, 2.0], accel_m_s2: [1.0, -3.0, 9.5] };
-    let step = SensorStep {
-        time_us: 3,
-        imu: heapless::Vec::from_slice(&[imu]).unwrap_or_default(),
-        mag: Some(Vec3::new(0.25, 0.5, -0.75)),
-        landed: Some(true),
-    };
-    let samples = [
-        LogRecord::Link(Uplink::Heartbeat),
-        LogRecord::Link(Uplink::ParamGet(control_core::params::ParamId::TrajectorySpeed)),
-        LogRecord::Step(step),
-        LogRecord::Truth {
-            time_us: 7,
-            position_m: [1.0, 2.0, 3.0],
-            velocity_m_s: [4.0, 5.0, 6.0],
-            attitude_rad: [7.0, 8.0, 9.0],
-        },
-        LogRecord::Frame(CameraFrame {
-            camera: CameraId::Downward,
-            seq: 11,
-            capture_time_us: 13,
-            width: 2,
-            height: 1,
-            channels: 1,
-            encoding: FrameEncoding::Raw,
-            rotation_hint_cam: [0.5, 0.25, 0.125],
-            data: vec![17, 19],
-        }),
-        LogRecord::Downlink(Downlink::CommandAck(control_core::CommandResult::Accepted(
-            control_core::Command::Arm,
-        ))),
-    ];
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut eat = |bytes: &[u8]| {
-        for &b in bytes {
-            h ^= b as u64;
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    };
-    for s in &samples {
-        eat(&postcard::to_allocvec(s).unwrap_or_default());
-    }
-    // A report: the first step of a stack with the paper's configuration (deterministic).
-    if let Ok(mut stack) = flight_core::FlightStack::new(flight_core::FlightConfig::paper()) {
-        let out = stack.step(&flight_core::StepInput {
-            time_us: 2000,
-            imu: &[imu],
-            mag: None,
-            uplink: &[],
-            landed: None,
-        });
-        eat(&postcard::to_allocvec(&LogRecord::Report(out.report())).unwrap_or_default());
-        let c = &out.control;
-        let telemetry = protocol::Telemetry {
-            time_us: 2000,
-            mode: c.status.mode,
-            failsafe: c.status.failsafe,
-            estimate: c.estimate,
-            setpoint: c.setpoint,
-            motors_rad_s: c.motors_rad_s,
-            fix_age_s: c.status.fix_age_s,
-            step_cost: 5,
-        };
-        eat(&postcard::to_allocvec(&LogRecord::Downlink(Downlink::Telemetry(telemetry))).unwrap_or_default());
-    }
-    format!("{h:016x}")
+    const KEY: postcard_schema::key::Key = postcard_schema::key::Key::for_path::<LogRecord>("wlq/flight-log");
+    KEY.to_bytes().iter().map(|b| format!("{b:02x}")).collect()
 }
 
 /// The frame of one record: postcard payload, wire version and CRC-16, COBS-encoded, delimiter (the layout of
@@ -367,7 +327,7 @@ pub fn header_bytes(header: &LogHeader) -> Result<Vec<u8>> {
 
 /// Writes a log.
 pub struct LogWriter {
-    out: std::io::BufWriter<std::fs::File>,
+    out: crate::files::AtomicFile,
     /// Records written.
     pub records: u64,
     /// Bytes written.
@@ -375,10 +335,9 @@ pub struct LogWriter {
 }
 
 impl LogWriter {
-    /// Creates `path` and writes the header.
+    /// Creates `path` (under a temporary name until [`LogWriter::finish`]) and writes the header.
     pub fn create(path: &Path, header: &LogHeader) -> Result<Self> {
-        let f = std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
-        let mut out = std::io::BufWriter::with_capacity(1 << 20, f);
+        let mut out = crate::files::AtomicFile::create(path)?;
         let head = header_bytes(header)?;
         out.write_all(&head)?;
         Ok(Self { out, records: 0, bytes: head.len() as u64 })
@@ -393,10 +352,9 @@ impl LogWriter {
         Ok(())
     }
 
-    /// Flushes to disk.
-    pub fn finish(mut self) -> Result<()> {
-        self.out.flush()?;
-        Ok(())
+    /// Flushes to disk and moves the file into place under its name.
+    pub fn finish(self) -> Result<()> {
+        self.out.commit()
     }
 }
 
@@ -724,21 +682,23 @@ mod tests {
             seed: 1,
             camera: "analytic".into(),
             flight_computer: "sil".into(),
+            reference: String::new(),
+            reference_yaw_absolute: false,
         }
     }
 
     #[test]
     fn golden_bytes_of_the_header_and_the_schema_hash() {
         let b = header_bytes(&sample_header()).unwrap();
-        // "WLQLOG", version 2 (u16 LE), JSON length (u32 LE), the JSON.
-        assert_eq!(&b[..8], b"WLQLOG\x02\x00");
+        // "WLQLOG", version 3 (u16 LE), JSON length (u32 LE), the JSON.
+        assert_eq!(&b[..8], b"WLQLOG\x03\x00");
         let len = u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize;
         assert_eq!(b.len(), 12 + len);
         assert!(
-            std::str::from_utf8(&b[12..]).unwrap().starts_with("{\"format_version\":2,\"schema_hash\":\"")
+            std::str::from_utf8(&b[12..]).unwrap().starts_with("{\"format_version\":3,\"schema_hash\":\"")
         );
         // The schema fingerprint of this version's records: any change to a record's fields changes it.
-        assert_eq!(schema_hash(), "0bbfee4a32b3dd97");
+        assert_eq!(schema_hash(), "6f27455eccab1148");
     }
 
     #[test]

@@ -82,6 +82,8 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
                 FcChoice::Sil => "sil".to_string(),
                 FcChoice::Qemu(q) => format!("qemu:{}", q.elf.display()),
             },
+            reference: String::new(),
+            reference_yaw_absolute: false,
         };
         sil.record_log(crate::flightlog::LogWriter::create(&log_path, &header)?, opts.frames);
     }

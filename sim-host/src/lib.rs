@@ -7,12 +7,14 @@
 pub mod downward;
 pub mod export;
 pub mod fil;
+pub mod files;
 pub mod flightlog;
 pub mod fly;
 pub mod imageio;
 pub mod import;
 pub mod model;
 pub mod plot;
+pub mod reference;
 pub mod render;
 pub mod replay;
 pub mod rng;

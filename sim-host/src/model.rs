@@ -3,7 +3,17 @@
 //! State: position and velocity (world), attitude quaternion (world from body), body angular velocity, and
 //! the four rotor speeds. Forces and torques:
 //!
-//! - thrust `f_i = k w_i^2` along body z; an optional linear translational drag (off in the paper);
+//! - thrust `f_i = k w_i^2` along body z, optionally raised near the floor by the ground effect
+//!   (Cheeseman and Bennett, "The effect of the ground on a helicopter rotor in forward flight", ARC R&M
+//!   3021, 1955: `T / T_inf = 1 / (1 - (R / 4z)^2)`, capped at 1.5);
+//! - rotor drag: the rotors' induced drag perpendicular to their axis, proportional to the air-relative
+//!   velocity in the rotor plane and to the sum of the rotor speeds, `F = -c (sum w_i) v_air,xy` in the body
+//!   frame (the standard quadrotor drag model: Martin and Salaun, "The true role of accelerometer feedback in
+//!   quadrotor control", ICRA 2010; Leishman et al., IEEE Control Systems Magazine 2014); with the default
+//!   `c` the drag is 0.3 m/s^2 per m/s at hover; an optional linear translational drag (both off in the
+//!   paper's model);
+//! - wind: the air moves with a world velocity given at each step; the drag terms see the air-relative
+//!   velocity;
 //! - roll and pitch torques from the thrust differences: `tau_x = l k (w2^2 - w4^2)`,
 //!   `tau_y = l k (w3^2 - w1^2)` (M1 front, M2 left, M3 rear, M4 right);
 //! - yaw: the reaction of each motor's torque on its rotor, `-s_i (k_tau w_i^2 + I_M w_i')` about body z,
@@ -76,6 +86,10 @@ pub struct ModelParams {
     pub motor_limits: [f64; 2],
     /// Linear translational drag (N per m/s); 0 in the paper.
     pub linear_drag: f64,
+    /// Rotor drag coefficient `c` (N per (m/s) per (rad/s) of the rotor speed sum); 0 in the paper.
+    pub rotor_drag: f64,
+    /// Rotor radius for the ground effect (m); `None` turns the ground effect off.
+    pub ground_effect_rotor_radius_m: Option<f64>,
     /// Gravity (m/s^2).
     pub gravity: f64,
     /// Height of the centre of mass when resting on the floor (m); `None` disables the floor.
@@ -100,6 +114,8 @@ impl ModelParams {
             motor_tau_s,
             motor_limits: [0.0, v.motor_speed_max_rad_s as f64],
             linear_drag,
+            rotor_drag: 0.0,
+            ground_effect_rotor_radius_m: None,
             gravity: control_core::GRAVITY as f64,
             ground_height_m,
         }
@@ -153,8 +169,25 @@ pub fn rotor_wrench(par: &ModelParams, rotors: [f64; 4]) -> (f64, V3) {
     (t, tau)
 }
 
-/// The state derivative for commanded rotor speeds `cmd`.
+/// The ground effect's thrust factor at a height of the rotors above the floor.
+pub fn ground_effect_factor(par: &ModelParams, height_m: f64) -> f64 {
+    match (par.ground_effect_rotor_radius_m, par.ground_height_m) {
+        (Some(r), Some(_)) => {
+            // The rotors sit at about the centre of mass's height.
+            let x = r / (4.0 * height_m.max(0.01));
+            if x >= 0.8 { 1.5 } else { (1.0 / (1.0 - x * x)).min(1.5) }
+        }
+        _ => 1.0,
+    }
+}
+
+/// The state derivative for commanded rotor speeds `cmd` in still air.
 pub fn derivative(par: &ModelParams, s: &State, cmd: [f64; 4]) -> Deriv {
+    derivative_in_wind(par, s, cmd, [0.0; 3])
+}
+
+/// The state derivative for commanded rotor speeds `cmd` in air moving at `wind` (world, m/s).
+pub fn derivative_in_wind(par: &ModelParams, s: &State, cmd: [f64; 4], wind: V3) -> Deriv {
     let mut drotors = [0.0; 4];
     for i in 0..4 {
         let c = cmd[i].clamp(par.motor_limits[0], par.motor_limits[1]);
@@ -168,7 +201,13 @@ pub fn derivative(par: &ModelParams, s: &State, cmd: [f64; 4]) -> Deriv {
     let h = [0.0, 0.0, par.rotor_inertia * h_sum];
     tau = add(tau, scale(cross(s.w, h), -1.0));
     let r = quat_to_mat(s.q);
-    let f_world = add(mat_vec(&r, [0.0, 0.0, thrust]), scale(s.v, -par.linear_drag));
+    let thrust = thrust * ground_effect_factor(par, s.p[2]);
+    let v_air = add(s.v, scale(wind, -1.0));
+    let v_air_b = mat_t_vec(&r, v_air);
+    let sum_w: f64 = s.rotors.iter().map(|w| w.abs()).sum();
+    let drag_b = [-par.rotor_drag * sum_w * v_air_b[0], -par.rotor_drag * sum_w * v_air_b[1], 0.0];
+    let f_body = add([0.0, 0.0, thrust], drag_b);
+    let f_world = add(mat_vec(&r, f_body), scale(v_air, -par.linear_drag));
     let dv = add(scale(f_world, 1.0 / par.mass_kg), [0.0, 0.0, -par.gravity]);
     let j = par.inertia;
     let jw = [j[0] * s.w[0], j[1] * s.w[1], j[2] * s.w[2]];
@@ -224,14 +263,19 @@ impl Quadrotor {
         }
     }
 
-    /// One RK4 step of `h` seconds with the rotor commands held.
+    /// One RK4 step of `h` seconds with the rotor commands held, in still air.
     pub fn step(&mut self, h: f64, cmd: [f64; 4]) {
+        self.step_in_wind(h, cmd, [0.0; 3]);
+    }
+
+    /// One RK4 step of `h` seconds with the rotor commands and the wind (world, m/s) held.
+    pub fn step_in_wind(&mut self, h: f64, cmd: [f64; 4], wind: V3) {
         let s = self.state;
         let p = &self.params;
-        let k1 = derivative(p, &s, cmd);
-        let k2 = derivative(p, &advance(&s, &k1, 0.5 * h), cmd);
-        let k3 = derivative(p, &advance(&s, &k2, 0.5 * h), cmd);
-        let k4 = derivative(p, &advance(&s, &k3, h), cmd);
+        let k1 = derivative_in_wind(p, &s, cmd, wind);
+        let k2 = derivative_in_wind(p, &advance(&s, &k1, 0.5 * h), cmd, wind);
+        let k3 = derivative_in_wind(p, &advance(&s, &k2, 0.5 * h), cmd, wind);
+        let k4 = derivative_in_wind(p, &advance(&s, &k3, h), cmd, wind);
         let mut n = s;
         let comb = |a: f64, b: f64, c: f64, d: f64| (a + 2.0 * b + 2.0 * c + d) * h / 6.0;
         for i in 0..3 {
@@ -249,7 +293,7 @@ impl Quadrotor {
         if let Some(g) = p.ground_height_m {
             let (thrust, _) = rotor_wrench(p, n.rotors);
             let r = quat_to_mat(n.q);
-            let lift = r[2][2] * thrust;
+            let lift = r[2][2] * thrust * ground_effect_factor(p, n.p[2]);
             if n.p[2] <= g {
                 if !self.on_ground {
                     self.max_touchdown_speed = self.max_touchdown_speed.max(-n.v[2]);

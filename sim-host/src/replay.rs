@@ -115,6 +115,11 @@ pub struct ReplaySummary {
     pub sim_time_s: f64,
     /// Damaged stretches of the log (skipped).
     pub damage: Vec<LogDamage>,
+    /// Whether the log holds the flight code's outputs (reports or downlinks) to compare with; an imported
+    /// dataset holds none.
+    pub has_outputs: bool,
+    /// The attitude against the log's reference, when it has one (`replay --summary`).
+    pub reference: Option<serde_json::Value>,
 }
 
 impl ReplaySummary {
@@ -164,6 +169,13 @@ pub fn replay_stream(
         }),
         VisionSource::Logged => None,
     };
+    let mut score = (!header.reference.is_empty()).then(|| {
+        crate::reference::ReferenceScore::new(
+            &header.reference,
+            header.reference_yaw_absolute,
+            scenario.estimator.mag_field_world,
+        )
+    });
     let mut schedule = DownlinkSchedule::new();
     let mut uplink: Vec<Uplink> = Vec::new();
     let mut last: Option<(u64, StepReport)> = None;
@@ -197,7 +209,10 @@ pub fn replay_stream(
                 s.links += 1;
             }
             LogRecord::Step(step) => {
-                // Downlinks of the previous step the log did not hold.
+                // Downlinks of the previous step the log did not hold (a log without outputs has none to hold).
+                if !s.has_outputs {
+                    downlinks.clear();
+                }
                 if !downlinks.is_empty() {
                     s.downlinks_differing += downlinks.len() as u64;
                     note(
@@ -221,6 +236,15 @@ pub fn replay_stream(
                     landed: step.landed,
                 });
                 stack.solve_pending();
+                if let Some(sc) = score.as_mut() {
+                    sc.step(
+                        step.time_us,
+                        &step.imu,
+                        step.mag,
+                        &o.control.estimate.q,
+                        o.control.estimate.yaw_std_rad < 1.0,
+                    );
+                }
                 uplink.clear();
                 s.steps += 1;
                 step_time = step.time_us;
@@ -238,6 +262,7 @@ pub fn replay_stream(
                 }
             }
             LogRecord::Report(logged) => {
+                s.has_outputs = true;
                 let Some((time_us, replayed)) = last.take() else {
                     bail!("record {index} (byte {offset}): a report without a step before it");
                 };
@@ -248,6 +273,7 @@ pub fn replay_stream(
                 }
             }
             LogRecord::Downlink(logged) => {
+                s.has_outputs = true;
                 s.downlinks_compared += 1;
                 let Some(mut replayed) = downlinks.pop_front() else {
                     s.downlinks_differing += 1;
@@ -297,9 +323,16 @@ pub fn replay_stream(
                 }
                 write(&LogRecord::Frame(f))?;
             }
+            LogRecord::Reference(r) => {
+                if let Some(sc) = score.as_mut() {
+                    sc.reference(&r);
+                }
+                write(&LogRecord::Reference(r))?;
+            }
             r @ LogRecord::Truth { .. } => write(&r)?,
         }
     }
+    s.reference = score.map(|sc| sc.json());
     if opts.vision == VisionSource::Frames && s.frames == 0 && s.links > 0 {
         bail!(
             "the log holds no camera frames (flown with --camera analytic or --frames none): replay from the \

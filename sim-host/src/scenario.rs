@@ -264,6 +264,12 @@ pub struct ModelConfig {
     pub motor_time_constant_s: f64,
     /// Linear translational drag (N per m/s); 0 gives the paper's model.
     pub linear_drag_n_s_per_m: f64,
+    /// Rotor drag: force per (m/s of air-relative velocity in the rotor plane) per (rad/s of the sum of the
+    /// rotor speeds) (N s^2 / (m rad)); 0 gives the paper's model. The default, 5.1e-5, is 0.3 (m/s^2)/(m/s)
+    /// at the paper vehicle's hover (its flight code's `estimator.drag_coeff_per_s`).
+    pub rotor_drag_coeff: f64,
+    /// Rotor radius for the ground effect near the floor (m); 0 turns it off (the paper's model).
+    pub ground_effect_rotor_radius_m: f64,
     /// Fixed physics step (s).
     pub physics_step_s: f64,
     /// Where the vehicle rests at the start (world, m); also the flight code's home.
@@ -277,6 +283,8 @@ impl Default for ModelConfig {
         Self {
             motor_time_constant_s: 0.02,
             linear_drag_n_s_per_m: 0.0,
+            rotor_drag_coeff: 5.1e-5,
+            ground_effect_rotor_radius_m: 0.127,
             physics_step_s: 0.001,
             start_position_m: [0.0, 1.30, 0.06],
             start_yaw_deg: 0.0,
@@ -626,6 +634,17 @@ impl Scenario {
             m.linear_drag_n_s_per_m.is_finite() && m.linear_drag_n_s_per_m >= 0.0,
             "model.linear_drag_n_s_per_m",
             "must be >= 0",
+        )?;
+        check(
+            m.rotor_drag_coeff.is_finite() && (0.0..=1e-3).contains(&m.rotor_drag_coeff),
+            "model.rotor_drag_coeff",
+            "must lie in [0, 1e-3] N s^2/(m rad)",
+        )?;
+        check(
+            m.ground_effect_rotor_radius_m.is_finite()
+                && (0.0..=0.5).contains(&m.ground_effect_rotor_radius_m),
+            "model.ground_effect_rotor_radius_m",
+            "must lie in [0, 0.5] m",
         )?;
         check(
             m.physics_step_s.is_finite() && m.physics_step_s > 0.0 && m.physics_step_s <= 0.001,

@@ -118,6 +118,8 @@ pub struct Record {
     pub mode: FlightMode,
     /// Age of the last accepted vision fix (s; infinite before the first).
     pub fix_age_s: f32,
+    /// The estimator's roll and pitch standard deviation (rad).
+    pub tilt_std_rad: f32,
 }
 
 /// One optical-flow velocity the flight code measured, against the truth (world frame).
@@ -302,12 +304,15 @@ impl Sil {
     pub fn with_fc(scenario: &Scenario, seed: u64, mode: CameraMode, fc: &FcChoice) -> Result<Self> {
         scenario.validate()?;
         let m = &scenario.model;
-        let params = ModelParams::from_vehicle(
+        let mut params = ModelParams::from_vehicle(
             &scenario.vehicle,
             m.motor_time_constant_s,
             m.linear_drag_n_s_per_m,
             Some(scenario.trajectory.ground_height_m as f64),
         );
+        params.rotor_drag = m.rotor_drag_coeff;
+        params.ground_effect_rotor_radius_m =
+            (m.ground_effect_rotor_radius_m > 0.0).then_some(m.ground_effect_rotor_radius_m);
         let yaw = geometry::deg(m.start_yaw_deg as f32);
         let r0 = Attitude::new(0.0, 0.0, yaw).world_from_body();
         let q0 = geometry::Quat::from_mat3(&r0);
@@ -798,6 +803,7 @@ impl Sil {
             motor: s.rotors,
             mode: out.control.status.mode,
             fix_age_s: out.control.status.fix_age_s,
+            tilt_std_rad: e.tilt_std_rad,
         });
     }
 

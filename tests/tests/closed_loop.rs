@@ -155,3 +155,28 @@ fn closed_loop_converges_from_large_offsets() {
         let _ = GRAVITY;
     }
 }
+
+#[test]
+fn the_reported_tilt_uncertainty_covers_the_tilt_error() {
+    // Consistency: over whole flights (ground, take-off, sweeps, landing) of seeds 1-5, 95 % of the roll and
+    // pitch errors lie within twice the reported standard deviation.
+    let s = Scenario::paper();
+    let (mut inside, mut total) = (0u64, 0u64);
+    let mut worst = 0.0f64;
+    for seed in 1..=5 {
+        let mut sil = Sil::new(&s, seed, CameraMode::Analytic).unwrap();
+        sil.run(s.mission.max_duration_s, |_| {});
+        for r in sil.records() {
+            let two_sigma = 2.0 * r.tilt_std_rad as f64;
+            for k in 0..2 {
+                let e = (r.est_att[k] as f64 - r.true_att[k]).abs();
+                worst = worst.max(e.to_degrees());
+                total += 1;
+                inside += (e <= two_sigma) as u64;
+            }
+        }
+    }
+    let coverage = inside as f64 / total as f64;
+    eprintln!("tilt within 2 sigma: {:.1} % of {total} ({worst:.2} deg largest error)", 100.0 * coverage);
+    assert!(coverage >= 0.95, "{:.1} % within 2 sigma", 100.0 * coverage);
+}

@@ -55,6 +55,10 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
                 add("/truth/pose", 1);
                 add("/truth", 1);
             }
+            LogRecord::Reference(_) => {
+                add("/reference/pose", 1);
+                add("/reference", 1);
+            }
             LogRecord::Frame(f) if f.camera == CameraId::Forward => add("/camera/forward", 1),
             LogRecord::Frame(_) => add("/camera/down", 1),
         }

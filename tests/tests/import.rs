@@ -95,7 +95,7 @@ fn a_euroc_dataset_imports_and_replays_through_the_estimator_and_the_vision() {
         cam0: CameraId::Forward,
         imu_to_body: EUROC_IMU_TO_BODY,
         latency_s: 0.0,
-        max_seconds: None,
+        window: Default::default(),
     };
     let s = import_euroc(&opts, &log_path, |_| {}).unwrap();
     assert_eq!(s.imu_samples, seconds * 200);

@@ -3,7 +3,7 @@ use geometry::Vec2;
 
 /// Radial (`k1, k2, k3`) and tangential (`p1, p2`) distortion coefficients, OpenCV's convention.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Distortion {
     /// Radial r^2 coefficient.
@@ -27,7 +27,7 @@ impl Distortion {
 
 /// Intrinsics of a camera. Pixel coordinates have integer values at pixel centres (OpenCV).
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct CameraModel {
     /// Image width (px).

@@ -31,7 +31,7 @@ const MAX_CANDIDATES: usize = 4;
 
 /// Why a frame gave no line measurement.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum NoTargetReason {
     /// The image is larger than [`MAX_DETECT_DIM`] or does not match the camera model.
@@ -88,7 +88,7 @@ impl NoTargetReason {
 
 /// Tuning of the detector. The defaults suit the paper scene (a 10 cm band seen from 0.6 to 3 m at 640x480).
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct DetectorParams {
     /// Minimum red chromaticity `r / (r + g + b)`.

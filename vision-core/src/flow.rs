@@ -33,7 +33,7 @@ const MAX_WIN: usize = 13; // window side at most (half window 6)
 
 /// Why a frame pair gave no flow.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum NoFlowReason {
     /// The frames differ in size, or exceed the workspace.
@@ -75,7 +75,7 @@ impl NoFlowReason {
 
 /// Tuning of the flow.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FlowParams {
     /// Pyramid levels (1 to 3).
@@ -132,7 +132,7 @@ impl Default for FlowParams {
 /// Whoever knows the rotation better (the flight controller, from its attitude history over exactly the frame
 /// interval) corrects for the difference with [`FlowStats::rotational_flow`], which is linear in the rotation.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FlowStats {
     /// Median over the inliers of the displacement less the rotational flow of `predicted_rotation`.
@@ -157,7 +157,7 @@ pub struct FlowStats {
 
 /// A velocity from the flow.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FlowVelocity {
     /// Camera velocity along the camera's x and y axes (m/s).

@@ -12,7 +12,7 @@ use geometry::{Vec2, Vec3};
 /// fitted normal, `t` the fitted direction, `s` the spread along the edge and `r` the residual RMS. The
 /// pose solver minimises exactly that, without keeping the points.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct EdgeStats {
     /// Centroid of the points (normalised coordinates).
@@ -98,7 +98,7 @@ impl EdgeStats {
 /// Ends: when the vehicle faces the wall, the line's `x_start` end appears on the right of the image and
 /// its `x_end` end on the left (world `+x` runs to the image's left).
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LineObservation {
     /// The upper long edge (`BC`).

@@ -32,7 +32,7 @@ use geometry::{Mat3, Vec2, Vec3};
 
 /// Where the camera sits on the vehicle.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct CameraMount {
     /// `R_BC`: camera axes in the body frame.
@@ -52,7 +52,7 @@ impl CameraMount {
 
 /// Where the rotation comes from.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum AttitudeSource {
     /// The image alone (the paper's vanishing points).
@@ -70,7 +70,7 @@ pub enum AttitudeSource {
 
 /// How the translation of the closed-form solution is computed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum TranslationMethod {
     /// Linear least squares over all observed edges given the rotation.
@@ -81,7 +81,7 @@ pub enum TranslationMethod {
 
 /// Solver options.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PoseParams {
     /// Translation of the closed-form solution.
@@ -123,7 +123,7 @@ impl Default for PoseParams {
 
 /// Why no pose was returned.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum PoseError {
     /// Bad input (non-finite values, invalid target or attitude).
@@ -177,7 +177,7 @@ impl PoseError {
 
 /// A pose of the camera and the vehicle, with its quality figures.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PoseSolution {
     /// Camera centre in the world frame (m). Its `x` is meaningless when `x_observed` is false.
@@ -209,7 +209,7 @@ pub struct PoseSolution {
 
 /// The mirrored solution of a planar pose.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct AlternativePose {
     /// Camera centre in the world frame (m).

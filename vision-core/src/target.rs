@@ -6,7 +6,7 @@ use geometry::Vec3;
 /// `A` and `B` are the `x = x_start` end (bottom and top), `C` and `D` the `x = x_end` end (top and bottom), so
 /// `AB` and `CD` are the short edges (the paper's `m1`, `m2`) and `BC`, `DA` the long ones (`l1`, `l2`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Corner {
     /// `(x_start, z_bottom)`.
@@ -26,7 +26,7 @@ impl Corner {
 
 /// An edge of the line's rectangle.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Edge {
     /// The upper long edge, `B -> C`.
@@ -47,7 +47,7 @@ impl Edge {
 /// Geometry of the painted line (metres, world frame). The paper's line is 2.30 m long; its height on the
 /// wall and its thickness are the project's defaults ([`LineTarget::PAPER`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LineTarget {
     /// World x of the start end (m).

@@ -19,7 +19,7 @@ pub struct AccelContext {
 
 /// Which accelerometer model was applied for a block.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum AccelAiding {
     /// At rest: zero velocity, gravity, zero rate (and the pad height).
@@ -230,8 +230,7 @@ impl Estimator {
             AccelAiding::Still => self.fuse_still(&report, ctx.pad_height_m),
             AccelAiding::Gravity => {
                 let sigma = self.params.handheld_gravity_sigma_m_s2;
-                // The hand's accelerations would leak into the accelerometer bias: the tilt only.
-                if !self.fuse_gravity_with(report.block.mean_accel, sigma, true, false) {
+                if !self.fuse_gravity(report.block.mean_accel, sigma, true) {
                     self.counters.accel_rejected += 1;
                 }
             }
@@ -245,6 +244,24 @@ impl Estimator {
     /// pitch), and the block's mean angular rate as the gyro bias.
     fn fuse_still(&mut self, report: &MotionReport, pad_height_m: Option<f32>) {
         let p = self.params;
+        if !self.still_initialised
+            && let Some((gyro, accel)) = report.still_window
+        {
+            // The first still window: the gyro bias from its mean rate, the tilt from its mean force (the
+            // first block's alignment may have been moving, and the bias has turned it since).
+            self.still_initialised = true;
+            let blocks = p.motion.window_blocks as f32;
+            self.bg = gyro;
+            let bv = p.still_gyro_sigma_rad_s * p.still_gyro_sigma_rad_s / blocks;
+            for k in 0..3 {
+                for i in 0..N {
+                    self.cov[IBG + k][i] = 0.0;
+                    self.cov[i][IBG + k] = 0.0;
+                }
+                self.cov[IBG + k][IBG + k] = bv;
+            }
+            self.align_tilt(accel - self.ba);
+        }
         let vv = p.still_velocity_sigma_m_s * p.still_velocity_sigma_m_s;
         for axis in 0..3 {
             let mut h = [0.0; N];
@@ -269,12 +286,12 @@ impl Estimator {
 
     /// Gravity from a mean specific force `f` (body): `f = R^T (0, 0, g) + b_a`, along the two directions
     /// perpendicular to the predicted gravity (the ones that tell the tilt). Returns whether it was used.
+    ///
+    /// It corrects the tilt only, with the bias removed by its estimate: at rest a tilt and an accelerometer
+    /// bias are one unobservable combination, and letting this update move the bias made the pair drift
+    /// along it (0.2 deg of pitch in a minute at rest on PX4's `sample.ulg`); the bias is learned from the
+    /// velocity's dynamics instead (vision fixes, flow, zero velocity at rest, rotations between rests).
     fn fuse_gravity(&mut self, f: Vec3, sigma: f32, gate: bool) -> bool {
-        self.fuse_gravity_with(f, sigma, gate, true)
-    }
-
-    /// [`Self::fuse_gravity`], with or without the accelerometer bias among the states it corrects.
-    fn fuse_gravity_with(&mut self, f: Vec3, sigma: f32, gate: bool, with_bias: bool) -> bool {
         if !f.is_finite() || (f.norm() - GRAVITY).abs() > 3.0 * sigma.max(0.3) {
             return false;
         }
@@ -284,15 +301,12 @@ impl Estimator {
         let (e1, e2) = perpendicular_basis(up);
         let mut ok = true;
         for e in [e1, e2] {
-            // d f / d theta = [R^T g]x (body-frame error), d f / d b_a = I.
+            // d f / d theta = [R^T g]x (body-frame error).
             let r = self.q.to_mat3();
             let g_b = r.tmul_vec(Vec3::new(0.0, 0.0, GRAVITY));
             let row = Mat3::skew(g_b).tmul_vec(e);
             let mut h = [0.0; N];
             h[ITH..ITH + 3].copy_from_slice(&row.to_array());
-            if with_bias {
-                h[IBA..IBA + 3].copy_from_slice(&e.to_array());
-            }
             let pred = e.dot(g_b + self.ba);
             ok &= self.update(&h, e.dot(f) - pred, sigma * sigma, gate);
         }
@@ -333,11 +347,14 @@ impl Estimator {
             let mut h = [0.0; N];
             h[IV..IV + 3].copy_from_slice(&row_v.to_array());
             h[ITH..ITH + 3].copy_from_slice(&row_th.to_array());
-            // The bias is removed with its estimate but not corrected here: the model's errors (wind, an
-            // inexact k) would leak into it. A learned axis has absorbed the bias across it already.
+            // The bias is considered but not corrected here: the model's errors (wind, an inexact k) would
+            // leak into it. A learned axis has absorbed the bias across it already.
             let bias = if learn { Vec3::ZERO } else { self.ba };
+            if !learn {
+                h[IBA..IBA + 3].copy_from_slice(&e.to_array());
+            }
             let pred = e.dot(vb * (-k) + bias);
-            ok &= self.update(&h, e.dot(f) - pred, s * s, true);
+            ok &= self.update_considering(&h, e.dot(f) - pred, s * s, true, IBA..IBA + 3);
         }
         if ok {
             self.counters.drag_blocks += 1;
@@ -355,8 +372,14 @@ impl Estimator {
         let pitch = libm::atan2f(-f.x, libm::sqrtf(f.y * f.y + f.z * f.z));
         let yaw = Attitude::from_world_from_body(&self.q.to_mat3()).yaw;
         self.q = Quat::from_mat3(&Attitude::new(roll, pitch, yaw).world_from_body());
+        // The tilt is new: uncorrelated with the rest (keeping the old cross terms with the new variance would
+        // leave the covariance indefinite).
         let var = self.params.initial_tilt_sigma_rad * self.params.initial_tilt_sigma_rad;
         for k in 0..2 {
+            for i in 0..N {
+                self.cov[ITH + k][i] = 0.0;
+                self.cov[i][ITH + k] = 0.0;
+            }
             self.cov[ITH + k][ITH + k] = var;
         }
     }

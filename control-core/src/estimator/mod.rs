@@ -15,7 +15,8 @@
 //!   hand's accelerations as noise; flying, the rotor-drag model (the specific force perpendicular to the
 //!   thrust axis is proportional to the body velocity).
 //!
-//! The first sample aligns roll and pitch with its specific force. Gaps between IMU samples are integrated in
+//! The first sample aligns roll and pitch with its specific force, the first block of samples (50 ms) with
+//! its mean, and the first still window with its mean (and sets the gyro bias from its mean rate). Gaps between IMU samples are integrated in
 //! sub-steps of at most 20 ms up to `max_imu_gap_s`; a longer gap is not integrated (the rates across it are
 //! unknown), only its process noise added, and counted (`imu_gaps`).
 //!
@@ -51,7 +52,7 @@ const IBA: usize = 12;
 
 /// One IMU sample (body frame).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ImuSample {
     /// Sample time (us, vehicle clock).
@@ -64,7 +65,7 @@ pub struct ImuSample {
 
 /// A position (and yaw) fix from the forward camera, solved on board.
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PositionFix {
     /// Capture time of the frame (us, vehicle clock).
@@ -83,7 +84,7 @@ pub struct PositionFix {
 
 /// A body-frame horizontal velocity measurement (optical flow).
 #[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct BodyVelocity {
     /// Mid-time of the measurement interval (us, vehicle clock).
@@ -96,7 +97,7 @@ pub struct BodyVelocity {
 
 /// Outcome of fusing one measurement.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FuseOutcome {
     /// Used.
@@ -113,7 +114,7 @@ pub enum FuseOutcome {
 
 /// The estimate the controllers use.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct StateEstimate {
     /// Time of the estimate (us).
@@ -157,7 +158,7 @@ pub struct PastState {
 
 /// Counters of what the estimator used and rejected.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct EstimatorCounters {
     /// Vision fixes used.
@@ -209,6 +210,8 @@ pub struct Estimator {
     motion_report: Option<MotionReport>,
     thrust_axis: Vec3,
     thrust_axis_learned: bool,
+    tilt_aligned: bool,
+    still_initialised: bool,
 }
 
 fn zero_cov() -> [[f32; N]; N] {
@@ -265,6 +268,8 @@ impl Estimator {
             motion_report: None,
             thrust_axis: Vec3::from_array(params.thrust_axis_body).normalized().unwrap_or(Vec3::Z),
             thrust_axis_learned: false,
+            tilt_aligned: false,
+            still_initialised: false,
         }
     }
 
@@ -299,7 +304,7 @@ impl Estimator {
     }
 
     /// Propagates the nominal state with one IMU sample. Returns `false` (and ignores the sample) when it is
-    /// not finite or not newer than the previous one. The first sample aligns roll and pitch.
+    /// not finite or not newer than the previous one. The first block of samples aligns roll and pitch.
     pub fn predict(&mut self, s: &ImuSample) -> bool {
         let g = Vec3::from_array(s.gyro_rad_s);
         let a = Vec3::from_array(s.accel_m_s2);
@@ -307,11 +312,12 @@ impl Estimator {
             return false;
         }
         let Some(last) = self.last_imu_us else {
+            // A first guess from this sample; the first block's mean refines it 50 ms later.
             self.align_tilt(a);
             self.last_imu_us = Some(s.time_us);
             self.last_omega = g - self.bg;
             self.last_accel = a - self.ba;
-            self.motion_report = self.motion.push(s, &self.q, self.bg).or(self.motion_report);
+            self.push_motion(s);
             return true;
         };
         if s.time_us <= last {
@@ -343,8 +349,20 @@ impl Estimator {
         }
         self.last_omega = omega;
         self.last_accel = acc;
-        self.motion_report = self.motion.push(s, &self.q, self.bg).or(self.motion_report);
+        self.push_motion(s);
         true
+    }
+
+    /// Feeds the motion detector; the first finished block aligns roll and pitch with its mean specific
+    /// force (a block averages the accelerometer's noise: one sample at 1 kHz can be 10 deg off).
+    fn push_motion(&mut self, s: &ImuSample) {
+        if let Some(r) = self.motion.push(s, &self.q, self.bg) {
+            if !self.tilt_aligned {
+                self.tilt_aligned = true;
+                self.align_tilt(r.block.mean_accel);
+            }
+            self.motion_report = Some(r);
+        }
     }
 
     /// Propagates the covariance over the time accumulated since the last call (once per control step), and
@@ -425,8 +443,27 @@ impl Estimator {
         }
     }
 
+    /// Scalar measurement update with row `h`; returns whether it was accepted.
+    ///
+    /// The rows are sparse (one to six non-zero entries), so `P h` runs over those only, and the covariance
     /// update `P - P h h^T P / s` is computed on the upper triangle and mirrored: it stays exactly symmetric.
     fn update(&mut self, h: &[f32; N], innovation: f32, var: f32, gate: bool) -> bool {
+        self.update_considering(h, innovation, var, gate, 0..0)
+    }
+
+    /// [`Self::update`] with the states in `consider` taken into account but not estimated (a Schmidt
+    /// "consider" update): their uncertainty enters the innovation's variance and their correlations are
+    /// updated, but their estimates and their own covariance are left as they are. For a measurement that
+    /// sees a state through a combination it cannot resolve (gravity at rest: the tilt and the
+    /// accelerometer bias), the other states then never claim more certainty than that state allows.
+    fn update_considering(
+        &mut self,
+        h: &[f32; N],
+        innovation: f32,
+        var: f32,
+        gate: bool,
+        consider: core::ops::Range<usize>,
+    ) -> bool {
         let mut nz = [0usize; N];
         let mut n_nz = 0;
         for (k, hv) in h.iter().enumerate() {
@@ -460,10 +497,16 @@ impl Estimator {
         let mut dx = [0.0f32; N];
         for i in 0..N {
             gain[i] = ph[i] * inv_s;
-            dx[i] = gain[i] * innovation;
+            if !consider.contains(&i) {
+                dx[i] = gain[i] * innovation;
+            }
         }
         for i in 0..N {
             for j in i..N {
+                // With the considered states' gain zero (Joseph form), only their own block stays unchanged.
+                if consider.contains(&i) && consider.contains(&j) {
+                    continue;
+                }
                 let v = self.cov[i][j] - gain[i] * ph[j];
                 self.cov[i][j] = v;
                 self.cov[j][i] = v;
@@ -511,8 +554,21 @@ impl Estimator {
             accel_bias_m_s2: self.ba,
             position_std_m: Vec3::new(sd(IP), sd(IP + 1), sd(IP + 2)),
             velocity_std_m_s: Vec3::new(sd(IV), sd(IV + 1), sd(IV + 2)),
-            tilt_std_rad: sd(ITH).max(sd(ITH + 1)),
+            tilt_std_rad: self.tilt_std_rad(),
             yaw_std_rad: libm::sqrtf(yaw_var.max(0.0)),
         }
+    }
+
+    /// Roll and pitch standard deviation relative to true gravity (rad, the larger): the attitude states'
+    /// own, plus what the accelerometer bias across the axis may hide. The gravity updates align the tilt with
+    /// the bias-corrected specific force and leave the bias alone (at rest the two are one unobservable
+    /// combination, see `aiding`), so the bias's variance is the tilt's floor: a bias `b` across body y reads
+    /// as a roll of `b / g`.
+    pub fn tilt_std_rad(&self) -> f32 {
+        let var = |th: usize, ba: usize| {
+            self.cov[th][th].max(0.0) + self.cov[ba][ba].max(0.0) / (GRAVITY * GRAVITY)
+        };
+        // Roll is about body x (hidden by a bias along y), pitch about body y (a bias along x).
+        libm::sqrtf(var(ITH, IBA + 1).max(var(ITH + 1, IBA)))
     }
 }

@@ -140,10 +140,12 @@ fn initial_alignment_from_a_tilted_start() {
     let (dr, dp) = ((s.attitude.roll - truth.roll).abs(), (s.attitude.pitch - truth.pitch).abs());
     assert!(dr.to_degrees() < 0.5 && dp.to_degrees() < 0.5, "roll {dr} pitch {dp}");
     assert!((s.gyro_bias_rad_s - bias).norm() < 0.005, "{:?}", s.gyro_bias_rad_s);
-    // The first sample alone already gives the tilt (no start from level).
+    // The first block (50 ms) alone already gives the tilt (no start from level).
     let mut e = Estimator::new(EstimatorParams::default(), Vec3::ZERO);
-    e.predict(&ImuSample { time_us: 1000, gyro_rad_s: [0.0; 3], accel_m_s2: f.to_array() });
-    let s = e.estimate(1000);
+    for k in 1..=51u64 {
+        e.predict(&ImuSample { time_us: k * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: f.to_array() });
+    }
+    let s = e.estimate(51_000);
     assert!((s.attitude.pitch - truth.pitch).abs() < 1e-4 && (s.attitude.roll - truth.roll).abs() < 1e-4);
 }
 
@@ -208,8 +210,8 @@ fn the_drag_model_corrects_a_tilt_error_in_flight() {
     // would be right here too, but not while accelerating (below).
     let params = EstimatorParams::default();
     let mut e = Estimator::new(params, Vec3::new(1.0, 1.3, 0.8));
-    // (The first sample aligns the tilt; the error is set after it.)
-    e.predict(&ImuSample { time_us: 0, gyro_rad_s: [0.0; 3], accel_m_s2: [0.0, 0.0, GRAVITY] });
+    // (The first block aligns the tilt; the error is set after it.)
+    e.tilt_aligned = true;
     e.q = Quat::from_mat3(&Attitude::new(3f32.to_radians(), 0.0, 0.0).world_from_body());
     let fly = AccelContext { airborne: Some(true), pad_height_m: None };
     let t = run(&mut e, 0, 20.0, fly, |_| (Vec3::ZERO, Vec3::new(0.0, 0.0, GRAVITY)));
@@ -234,7 +236,7 @@ fn the_drag_model_corrects_a_tilt_error_in_flight() {
         v += (r.mul_vec(f) - Vec3::new(0.0, 0.0, GRAVITY)) * 0.001;
     }
     let mut e = Estimator::new(params, Vec3::new(1.0, 1.3, 0.8));
-    e.predict(&ImuSample { time_us: 0, gyro_rad_s: [0.0; 3], accel_m_s2: forces[0].to_array() });
+    e.tilt_aligned = true;
     e.q = Quat::from_mat3(&r);
     let t = run(&mut e, 0, 2.0, fly, |t| (Vec3::ZERO, forces[((t * 1000.0).round() as usize - 1).min(1999)]));
     let s = e.estimate(t);
@@ -246,7 +248,7 @@ fn the_drag_model_corrects_a_tilt_error_in_flight() {
     );
     // The gravity model on the same samples: pulled toward level.
     let mut g = Estimator::new(params, Vec3::new(1.0, 1.3, 0.8));
-    g.predict(&ImuSample { time_us: 0, gyro_rad_s: [0.0; 3], accel_m_s2: forces[0].to_array() });
+    g.tilt_aligned = true;
     g.q = Quat::from_mat3(&r);
     let carried = AccelContext { airborne: Some(false), pad_height_m: None };
     let t =

@@ -1,0 +1,147 @@
+//! `sim-host fly`: a scenario flown in simulation.
+use super::common::{progress_bar, rtf_text};
+use anyhow::{Result, bail};
+use clap::{Args, ValueEnum};
+use sim_host::Scenario;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub(crate) enum FramesArg {
+    /// Lossless PNG.
+    Png,
+    /// Raw 8-bit pixels.
+    Raw,
+    /// No frames, only the vision results.
+    None,
+}
+
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub(crate) enum CameraSim {
+    /// Rendered images through the full vision pipeline.
+    Rendered,
+    /// The line's edges projected analytically with edge noise (fast).
+    Analytic,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct FlyArgs {
+    /// Scenario: a built-in name (`paper`) or a TOML file.
+    #[arg(long, default_value = "paper")]
+    pub(crate) scenario: String,
+    /// Seed of every noise stream (a run is a pure function of scenario, seed and camera mode).
+    #[arg(long, default_value_t = 1)]
+    pub(crate) seed: u64,
+    /// Longest simulated time in seconds (default: the scenario's limit; the run ends when it has landed).
+    #[arg(long)]
+    pub(crate) duration: Option<f64>,
+    /// How the forward camera is simulated.
+    #[arg(long, value_enum, default_value = "rendered")]
+    pub(crate) camera: CameraSim,
+    /// Output directory (summary.json, trajectory.csv, x/y/z/vx/vy.png).
+    #[arg(long)]
+    pub(crate) out: PathBuf,
+    /// Skip the PNG plots.
+    #[arg(long)]
+    pub(crate) no_plots: bool,
+    /// Do not write the flight log (`flight.log`, for `sim-host replay` and `sim-host export`).
+    #[arg(long)]
+    pub(crate) no_log: bool,
+    /// Camera frames in the flight log: `png` (lossless), `raw` pixels, or `none` (only the vision results;
+    /// a far smaller log, replayable from vision results only). Only rendered cameras have frames.
+    #[arg(long, value_enum, default_value = "png")]
+    pub(crate) frames: FramesArg,
+    /// The flight computer: `sil` (the flight code in this process) or `qemu:PATH` (the firmware ELF built with
+    /// `--features fil`, run in qemu-system-arm's netduinoplus2 model, in lockstep over its UART).
+    #[arg(long, default_value = "sil", value_name = "sil|qemu:ELF")]
+    pub(crate) fc: String,
+}
+pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
+    use sim_host::fly::{FlyOptions, fly};
+    use sim_host::sil::CameraMode;
+    let scenario = Scenario::load(&a.scenario)?;
+    if let Some(d) = a.duration
+        && !(d > 0.0 && d.is_finite())
+    {
+        bail!("--duration must be positive");
+    }
+    let camera = match a.camera {
+        CameraSim::Rendered => CameraMode::Rendered,
+        CameraSim::Analytic => CameraMode::Analytic,
+    };
+    let fc = match sim_host::fil::parse_fc(&a.fc)? {
+        None => sim_host::sil::FcChoice::Sil,
+        Some(elf) => sim_host::sil::FcChoice::Qemu(sim_host::fil::QemuOptions::new(elf)),
+    };
+    let opts = FlyOptions {
+        scenario,
+        seed: a.seed,
+        duration_s: a.duration,
+        camera,
+        out: a.out.clone(),
+        plots: !a.no_plots,
+        fc,
+        log: !a.no_log,
+        frames: match a.frames {
+            FramesArg::Png => sim_host::flightlog::FramePolicy::Png,
+            FramesArg::Raw => sim_host::flightlog::FramePolicy::Raw,
+            FramesArg::None => sim_host::flightlog::FramePolicy::Drop,
+        },
+    };
+    let bar = progress_bar(1000, "{spinner} flying [{bar:40}] {msg} ({elapsed} elapsed)");
+    let result = fly(&opts, |t, end| {
+        bar.set_position((t / end * 1000.0).min(1000.0) as u64);
+        bar.set_message(format!("{t:.1} s simulated"));
+    })?;
+    bar.finish_and_clear();
+    let st = &result.stats;
+    eprintln!(
+        "{} s simulated in {:.1} s ({} real time), {} sweep passes, {}",
+        format_args!("{:.1}", st.sim_time_s),
+        result.wall_time_s,
+        rtf_text(st.sim_time_s / result.wall_time_s.max(1e-9)),
+        st.passes_done,
+        if st.crashed {
+            format!("CRASHED: {}", st.crash_reason.clone().unwrap_or_default())
+        } else if st.landed {
+            "landed".to_string()
+        } else {
+            "not landed".to_string()
+        }
+    );
+    eprintln!(
+        "tracking RMS error x {:.1} mm, y {:.1} mm, z {:.1} mm; estimate RMS error x {:.1} mm, y {:.1} mm, z {:.1} mm; max tilt {:.2} deg",
+        1e3 * st.rms_error_m[0],
+        1e3 * st.rms_error_m[1],
+        1e3 * st.rms_error_m[2],
+        1e3 * st.estimate_rms_error_m[0],
+        1e3 * st.estimate_rms_error_m[1],
+        1e3 * st.estimate_rms_error_m[2],
+        st.max_tilt_deg
+    );
+    if let Some(c) = &st.fc_cost {
+        let budget = sim_host::fil::STEP_BUDGET_INSTRUCTIONS;
+        eprintln!(
+            "firmware control step: mean {:.0} instructions, max {} at {:.2} s (budget {budget}: {}); {:.1} % of the core",
+            c.mean_instructions,
+            c.max_instructions,
+            c.max_at_s,
+            if c.max_instructions <= budget { "within" } else { "OVER" },
+            100.0 * c.step_cpu_share
+        );
+        eprintln!(
+            "firmware pose solves (background): {} solves, mean {:.0} instructions each, largest run {} at {:.2} s; {:.1} % of the core",
+            c.solves,
+            c.solve_mean_instructions,
+            c.background_max_instructions,
+            c.background_max_at_s,
+            100.0 * c.background_cpu_share
+        );
+        eprintln!("firmware {}", c.stack_report.as_deref().unwrap_or("gave no stack report"));
+    }
+    eprintln!("wrote:");
+    for f in &result.files {
+        eprintln!("  {}", f.display());
+    }
+    Ok(if st.crashed { ExitCode::from(3) } else { ExitCode::SUCCESS })
+}

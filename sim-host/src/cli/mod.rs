@@ -1,0 +1,8 @@
+//! The commands, one module each.
+pub(crate) mod common;
+pub(crate) mod export;
+pub(crate) mod fly;
+pub(crate) mod import;
+pub(crate) mod render;
+pub(crate) mod replay;
+pub(crate) mod vision;
