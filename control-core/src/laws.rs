@@ -34,6 +34,51 @@ pub struct Setpoint {
     pub yaw_rad: f32,
 }
 
+/// Moves a reference at bounded rates: each step the position goes at most `h` (horizontal, m/s) and `v`
+/// (vertical) toward the wanted one, and while it is held back its velocity is the limiter's own and its
+/// acceleration zero. [`SetpointLimiter::restart`] puts it where the vehicle is (after a failsafe, at take-off).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SetpointLimiter {
+    position: Option<Vec3>,
+}
+
+impl SetpointLimiter {
+    /// A limiter that starts at the first reference it sees.
+    pub fn new() -> Self {
+        Self { position: None }
+    }
+
+    /// Starts again from `p`.
+    pub fn restart(&mut self, p: Vec3) {
+        self.position = Some(p);
+    }
+
+    /// The reference `sp` limited; `dt` the step (s).
+    pub fn limit(&mut self, sp: &Setpoint, h: f32, v: f32, dt: f32) -> Setpoint {
+        let prev = *self.position.get_or_insert(sp.position_m);
+        let d = sp.position_m - prev;
+        let mut out = *sp;
+        let (hmax, vmax) = (h * dt, v * dt);
+        let dh = libm::sqrtf(d.x * d.x + d.y * d.y);
+        if dh > hmax && dt > 0.0 {
+            let k = hmax / dh;
+            out.position_m.x = prev.x + d.x * k;
+            out.position_m.y = prev.y + d.y * k;
+            out.velocity_m_s.x = d.x * k / dt;
+            out.velocity_m_s.y = d.y * k / dt;
+            out.accel_m_s2.x = 0.0;
+            out.accel_m_s2.y = 0.0;
+        }
+        if libm::fabsf(d.z) > vmax && dt > 0.0 {
+            out.position_m.z = prev.z + vmax * d.z.signum();
+            out.velocity_m_s.z = vmax * d.z.signum() / dt;
+            out.accel_m_s2.z = 0.0;
+        }
+        self.position = Some(out.position_m);
+        out
+    }
+}
+
 /// Total thrust and body torques.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
@@ -172,10 +217,11 @@ impl Controller {
         // Altitude (eq. 30) with the bounded integral.
         let a = &g.altitude;
         let (ez, dez) = (e_w.z, de_w.z);
-        // Anti-windup: integrate only near the reference.
-        if integrate && dt > 0.0 && ez.abs() < 0.3 && dez.abs() < 0.5 {
+        // Anti-windup: the error integrated at most +-0.3 m (a large offset, such as a heavier vehicle's, is
+        // still integrated out, at a bounded rate), and not while the vertical speed is far off.
+        if integrate && dt > 0.0 && dez.abs() < 0.5 {
             self.altitude_integral = clamp_finite(
-                self.altitude_integral + a.integral_gain * ez * dt,
+                self.altitude_integral + a.integral_gain * clamp_finite(ez, -0.3, 0.3) * dt,
                 -a.integral_limit_m_s2,
                 a.integral_limit_m_s2,
             );

@@ -43,8 +43,22 @@ pub const LANDING_DEPTH_BELOW_FLOOR_M: f32 = 10.0;
 /// Landing: a vertical speed above minus this counts as not descending (m/s).
 pub const GROUND_CONTACT_SPEED_M_S: f32 = 0.05;
 
+/// Landing: a specific force this fraction of gravity beyond the thrust's share means the floor carries the
+/// vehicle (above what a vehicle 20 % lighter than configured shows in flight).
+pub const GROUND_CONTACT_EXCESS: f32 = 0.25;
+
 /// Time constant of the specific force's magnitude that the land detector reads (s).
 pub const ACCEL_FILTER_S: f32 = 0.1;
+
+/// The setpoint limiter's rates over the mission's speeds (horizontal: the sweep's or the take-off's,
+/// vertical: the take-off's or the landing's): above them, so that the mission's own profiles pass unchanged.
+pub const SETPOINT_RATE_MARGIN: f32 = 1.5;
+
+/// A take-off is done when the height is this close to the mission's, for `settle_s` (m).
+pub const TAKEOFF_CLOSE_M: f32 = 0.05;
+
+/// A take-off that timed out this high above the pad hovers; lower, it lands (m).
+pub const TAKEOFF_AIRBORNE_M: f32 = 0.1;
 
 /// An operator command (from the ground station over the radio link).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -120,6 +134,9 @@ pub enum Failsafe {
     EstimatorFault,
     /// Tilt beyond the crash limit: motors off.
     ExcessiveTilt,
+    /// The take-off did not reach and hold its height in time: hovering where it is when airborne, else
+    /// landing.
+    TakeOffTimeout,
 }
 
 /// Why a command was refused.
@@ -268,6 +285,8 @@ pub struct ControlCore {
     last_thrust_n: f32,
     contact_since_us: Option<u64>,
     accel_lp: Option<f32>,
+    resume_climb: bool,
+    limiter: laws::SetpointLimiter,
 }
 
 impl ControlCore {
@@ -310,6 +329,8 @@ impl ControlCore {
             last_thrust_n: 0.0,
             contact_since_us: None,
             accel_lp: None,
+            resume_climb: false,
+            limiter: laws::SetpointLimiter::new(),
         }
     }
 
@@ -401,6 +422,7 @@ impl ControlCore {
                     self.hold = Vec3::new(est.position_m.x, est.position_m.y, t.z_d_m);
                     self.yaw_d = t.yaw_d_rad;
                     self.start_vertical(est.position_m.z, t.z_d_m, t.takeoff_speed_m_s, now);
+                    self.limiter.restart(est.position_m);
                     self.airborne_since_us = now;
                     self.settled_since_us = None;
                     Ok(())
@@ -546,23 +568,40 @@ impl ControlCore {
         if self.mode.airborne() {
             let since = self.last_fix_us.unwrap_or(0).max(self.airborne_since_us);
             let fix_age = now.saturating_sub(since) as f32 * 1e-6;
+            // The take-off climbs on the IMU (the line is often out of view from the pad); vision is required
+            // once the climb is done.
+            let climbing = self.mode == FlightMode::TakeOff
+                && self
+                    .vertical
+                    .is_some_and(|(mv, t0)| now.saturating_sub(t0) as f32 * 1e-6 < mv.duration_s());
             if !link_ok && self.mode != FlightMode::Landing {
                 self.failsafe = Some(Failsafe::LinkLost);
                 self.begin_landing(now, &est);
             } else if matches!(self.mode, FlightMode::Hover | FlightMode::Tracking | FlightMode::TakeOff)
+                && !climbing
                 && fix_age > fs.vision_hold_after_s
             {
                 self.failsafe = Some(Failsafe::VisionLost);
+                self.resume_climb = self.mode == FlightMode::TakeOff;
                 self.mode = FlightMode::VisionHold;
                 self.sweep = None;
                 self.hold_since_us = now;
-                self.hold = Vec3::new(est.position_m.x, est.position_m.y, self.hold.z.max(est.position_m.z));
+                // Hold where the vehicle is; the setpoint limiter ramps there from where it was.
+                self.hold = est.position_m;
                 self.vertical = None;
+                self.limiter.restart(est.position_m);
             } else if self.mode == FlightMode::VisionHold {
                 if fix_age <= fs.vision_hold_after_s {
-                    // Vision is back: hover where we are.
-                    self.mode = FlightMode::Hover;
-                    self.hold = Vec3::new(est.position_m.x, est.position_m.y, self.hold.z);
+                    // Vision is back: go on from where the vehicle is (a take-off climbs on from its height).
+                    self.hold = Vec3::new(est.position_m.x, est.position_m.y, est.position_m.z);
+                    if self.resume_climb {
+                        self.mode = FlightMode::TakeOff;
+                        self.hold.z = traj.z_d_m;
+                        self.start_vertical(est.position_m.z, traj.z_d_m, traj.takeoff_speed_m_s, now);
+                        self.settled_since_us = None;
+                    } else {
+                        self.mode = FlightMode::Hover;
+                    }
                 } else if now.saturating_sub(self.hold_since_us) as f32 * 1e-6 > fs.vision_land_after_s {
                     self.failsafe = Some(Failsafe::VisionLostLanding);
                     self.begin_landing(now, &est);
@@ -584,7 +623,7 @@ impl ControlCore {
                     let done = self
                         .vertical
                         .is_some_and(|(mv, t0)| now.saturating_sub(t0) as f32 * 1e-6 >= mv.duration_s());
-                    let close = (est.position_m.z - traj.z_d_m).abs() < 0.05;
+                    let close = (est.position_m.z - traj.z_d_m).abs() < TAKEOFF_CLOSE_M;
                     if done && close {
                         let since = *self.settled_since_us.get_or_insert(now);
                         if now.saturating_sub(since) as f32 * 1e-6 >= traj.settle_s {
@@ -593,6 +632,19 @@ impl ControlCore {
                         }
                     } else {
                         self.settled_since_us = None;
+                    }
+                    // A take-off that has not settled in time: hover where it is when airborne, else land.
+                    let late = self.vertical.is_some_and(|(mv, t0)| {
+                        now.saturating_sub(t0) as f32 * 1e-6 > mv.duration_s() + traj.takeoff_timeout_s
+                    });
+                    if late && self.mode == FlightMode::TakeOff {
+                        self.failsafe = Some(Failsafe::TakeOffTimeout);
+                        if est.position_m.z > traj.ground_height_m + TAKEOFF_AIRBORNE_M {
+                            self.mode = FlightMode::Hover;
+                            self.vertical = None;
+                        } else {
+                            self.begin_landing(now, &est);
+                        }
                     }
                 } else {
                     // The land detector (as PX4's and ArduPilot's): the thrust demand near idle, the specific
@@ -633,8 +685,22 @@ impl ControlCore {
             _ => {}
         }
 
-        // Laws and mixer.
-        let integrate = matches!(self.mode, FlightMode::Hover | FlightMode::Tracking);
+        // Every reference moves at a bounded rate from where it was (a failsafe restarts it where the vehicle
+        // is): no step anywhere.
+        if matches!(self.mode, FlightMode::Disarmed | FlightMode::Armed | FlightMode::Emergency) {
+            self.limiter.restart(est.position_m);
+        } else {
+            let h = traj.speed_m_s.max(traj.takeoff_speed_m_s) * SETPOINT_RATE_MARGIN;
+            let v = traj.takeoff_speed_m_s.max(traj.landing_speed_m_s) * SETPOINT_RATE_MARGIN;
+            sp = self.limiter.limit(&sp, h, v, dt);
+        }
+
+        // Laws and mixer. The altitude integral works from lift-off (a vehicle heavier or lighter than
+        // configured completes its take-off).
+        let off_pad = est.position_m.z > traj.ground_height_m + TAKEOFF_AIRBORNE_M;
+        let integrate =
+            matches!(self.mode, FlightMode::Hover | FlightMode::Tracking | FlightMode::VisionHold)
+                || (self.mode == FlightMode::TakeOff && off_pad);
         let (mut demand, law) = self.controller.update(&est, &sp, dt, integrate, self.motors);
         // Ground contact while landing: commanded down, not descending, and the floor carrying the vehicle
         // (the specific force that of gravity). The thrust is then wound down to idle in
@@ -642,7 +708,11 @@ impl ControlCore {
         if self.mode == FlightMode::Landing {
             let fs = &self.params.failsafe;
             let supported = step_accel.is_some_and(|f| (f - GRAVITY).abs() < fs.land_accel_tolerance_m_s2);
-            let stalled = est.velocity_m_s.z > -GROUND_CONTACT_SPEED_M_S && supported;
+            // Not descending by the estimate, or the specific force beyond what the thrust explains (the
+            // floor carries the rest; this one needs no estimate at all).
+            let weight_per_kg = self.last_thrust_n / self.params.vehicle.mass_kg;
+            let carried = step_accel.is_some_and(|f| f - weight_per_kg > GROUND_CONTACT_EXCESS * GRAVITY);
+            let stalled = (est.velocity_m_s.z > -GROUND_CONTACT_SPEED_M_S || carried) && supported;
             if est.velocity_m_s.z < -3.0 * GROUND_CONTACT_SPEED_M_S {
                 self.contact_since_us = None;
             } else if stalled {

@@ -151,7 +151,7 @@ impl Default for AltitudeGains {
             a_z1: 4.5,
             a_z2: 6.25,
             integral_gain: 1.0,
-            integral_limit_m_s2: 1.5,
+            integral_limit_m_s2: 4.0,
             min_cos_tilt: 0.5,
             max_thrust_to_weight: 2.0,
         }
@@ -425,6 +425,15 @@ pub struct EstimatorParams {
     pub vision_yaw_floor_rad: f32,
     /// Magnetometer heading standard deviation (rad).
     pub mag_heading_sigma_rad: f32,
+    /// While a vision yaw was accepted within `mag_vision_window_s`, a compass heading further than this from
+    /// the estimate is refused (and counted) (rad).
+    pub mag_consistency_rad: f32,
+    /// How recent a vision yaw must be for the compass to be checked against it (s).
+    pub mag_vision_window_s: f32,
+    /// Rate at which the compass's heading offset from the vision yaw is learned, per reading (0..1).
+    pub mag_offset_learn_rate: f32,
+    /// Consecutive refused vision yaws after which the heading is reset to vision's.
+    pub vision_yaw_reset_after: u8,
     /// Innovations beyond this many standard deviations are rejected.
     pub gate_sigma: f32,
     /// Fixes older than this are not fused (s).
@@ -474,6 +483,10 @@ impl Default for EstimatorParams {
             vision_position_floor_m: 0.004,
             vision_yaw_floor_rad: 0.002,
             mag_heading_sigma_rad: 0.1,
+            mag_consistency_rad: 0.15,
+            mag_vision_window_s: 1.0,
+            mag_offset_learn_rate: 0.02,
+            vision_yaw_reset_after: 5,
             gate_sigma: 5.0,
             max_fix_age_s: 0.25,
             mag_field_world: [0.2, -0.05, -0.4],
@@ -504,6 +517,22 @@ impl EstimatorParams {
         positive(self.vision_position_floor_m, "estimator.vision_position_floor_m")?;
         positive(self.vision_yaw_floor_rad, "estimator.vision_yaw_floor_rad")?;
         positive(self.mag_heading_sigma_rad, "estimator.mag_heading_sigma_rad")?;
+        check(
+            self.mag_consistency_rad > 0.0 && self.mag_consistency_rad <= 3.2,
+            "estimator.mag_consistency_rad",
+            "must lie in (0, pi] rad",
+        )?;
+        check(
+            self.mag_vision_window_s > 0.0 && self.mag_vision_window_s <= 10.0,
+            "estimator.mag_vision_window_s",
+            "must lie in (0, 10] s",
+        )?;
+        check(
+            self.mag_offset_learn_rate > 0.0 && self.mag_offset_learn_rate <= 1.0,
+            "estimator.mag_offset_learn_rate",
+            "must lie in (0, 1]",
+        )?;
+        check(self.vision_yaw_reset_after >= 1, "estimator.vision_yaw_reset_after", "must be at least 1")?;
         check(
             self.gate_sigma >= 2.0 && self.gate_sigma.is_finite(),
             "estimator.gate_sigma",
@@ -590,6 +619,8 @@ pub struct TrajectoryParams {
     pub settle_s: f32,
     /// Height of the centre of mass above the floor when landed (m).
     pub ground_height_m: f32,
+    /// A take-off still not settled this long after its climb: the `TakeOffTimeout` failsafe (s).
+    pub takeoff_timeout_s: f32,
 }
 
 impl Default for TrajectoryParams {
@@ -606,6 +637,7 @@ impl Default for TrajectoryParams {
             landing_speed_m_s: 0.3,
             settle_s: 2.0,
             ground_height_m: 0.06,
+            takeoff_timeout_s: 10.0,
         }
     }
 }
@@ -649,6 +681,11 @@ impl TrajectoryParams {
             "must lie in (0, 1.5] m/s",
         )?;
         non_negative(self.settle_s, "trajectory.settle_s")?;
+        check(
+            self.takeoff_timeout_s > self.settle_s && self.takeoff_timeout_s <= 120.0,
+            "trajectory.takeoff_timeout_s",
+            "must exceed settle_s and be at most 120 s",
+        )?;
         non_negative(self.ground_height_m, "trajectory.ground_height_m")
     }
 }

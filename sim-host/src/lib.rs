@@ -21,6 +21,8 @@ pub mod rng;
 pub mod scenario;
 pub mod sensors;
 pub mod sil;
+pub mod sweep;
 pub mod vision;
+pub mod wind;
 
 pub use scenario::Scenario;

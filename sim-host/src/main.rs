@@ -10,6 +10,7 @@ use cli::fly::{FlyArgs, fly};
 use cli::import::{ImportCommand, import_euroc, import_ulog};
 use cli::render::{RenderArgs, render};
 use cli::replay::{ReplayArgs, replay};
+use cli::sweep::{SweepArgs, sweep};
 use cli::vision::{VisionCommand, vision_flow, vision_pose};
 use std::process::ExitCode;
 
@@ -45,6 +46,9 @@ enum Command {
     /// Import a recorded dataset into a flight log (then `replay --out` runs the flight code on it).
     #[command(subcommand)]
     Import(ImportCommand),
+    /// Fly many seeded runs of a mission with the scenario drawn from distributions (model error, wind,
+    /// faults), in parallel and shardable; `sweep merge` joins the shards.
+    Sweep(SweepArgs),
 }
 
 fn main() -> ExitCode {
@@ -71,6 +75,7 @@ fn main() -> ExitCode {
         Command::Export(a) => run_export(a),
         Command::Import(ImportCommand::Euroc(a)) => import_euroc(a),
         Command::Import(ImportCommand::Ulog(a)) => import_ulog(a),
+        Command::Sweep(a) => sweep(a),
     };
     match result {
         Ok(code) => code,

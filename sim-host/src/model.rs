@@ -90,6 +90,8 @@ pub struct ModelParams {
     pub rotor_drag: f64,
     /// Rotor radius for the ground effect (m); `None` turns the ground effect off.
     pub ground_effect_rotor_radius_m: Option<f64>,
+    /// Each rotor's thrust and drag torque relative to the nominal (a damaged or stopped rotor: below 1).
+    pub rotor_scale: [f64; 4],
     /// Gravity (m/s^2).
     pub gravity: f64,
     /// Height of the centre of mass when resting on the floor (m); `None` disables the floor.
@@ -116,6 +118,7 @@ impl ModelParams {
             linear_drag,
             rotor_drag: 0.0,
             ground_effect_rotor_radius_m: None,
+            rotor_scale: [1.0; 4],
             gravity: control_core::GRAVITY as f64,
             ground_height_m,
         }
@@ -159,7 +162,10 @@ pub struct Deriv {
 
 /// Thrust (N) and body torques (N m) of the rotors alone (no gyroscopic or reaction terms).
 pub fn rotor_wrench(par: &ModelParams, rotors: [f64; 4]) -> (f64, V3) {
-    let s = rotors.map(|w| w * w);
+    let mut s = rotors.map(|w| w * w);
+    for i in 0..4 {
+        s[i] *= par.rotor_scale[i];
+    }
     let t = par.k * (s[0] + s[1] + s[2] + s[3]);
     let tau = [
         par.arm_m * par.k * (s[1] - s[3]),

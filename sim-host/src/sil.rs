@@ -15,8 +15,9 @@ use crate::flightlog::LogRecord;
 use crate::model::{ModelParams, Quadrotor, quat_to_mat};
 use crate::render::{DownPose, DownRenderer, ForwardRenderer};
 use crate::rng::{SimRng, splitmix64};
+use crate::scenario::FaultKind;
 use crate::scenario::Scenario;
-use crate::sensors::ImuModel;
+use crate::sensors::{ImuFaults, ImuModel};
 use crate::vision::GroundVision;
 use anyhow::Result;
 use control_core::estimator::ImuSample;
@@ -181,8 +182,20 @@ pub struct RunStats {
     pub frames_no_target: u32,
     /// Frames the vehicle rejected.
     pub frames_rejected: u32,
-    /// Failsafes that acted, in order.
-    pub failsafes: Vec<String>,
+    /// Failsafes that acted, in order: time (s) and which (`VisionLost`, ...).
+    pub failsafes: Vec<(f64, String)>,
+    /// Whether a rotor came within reach of the wall (the centre closer than the arm and a rotor radius).
+    pub wall_contact: bool,
+    /// The closest the vehicle's centre came to the wall (m).
+    pub min_wall_distance_m: f64,
+    /// Uplink messages lost to a `link_loss` or `link_corruption` fault.
+    pub link_dropped: u64,
+    /// The estimator's counters at the end (rejections by source).
+    pub estimator: control_core::estimator::EstimatorCounters,
+    /// Largest tilt error of the estimate while tracking (deg).
+    pub max_tilt_error_deg: f64,
+    /// RMS tilt error of the estimate while tracking (deg).
+    pub tilt_error_rms_deg: f64,
     /// Modes visited, with the time each began (s).
     pub modes: Vec<(f64, String)>,
     /// Whether the run ended landed and disarmed.
@@ -221,6 +234,14 @@ pub struct Sil {
     cost_sum: f64,
     background_sum: f64,
     imu: ImuModel,
+    wind: crate::wind::Wind,
+    wind_now: [f64; 3],
+    fault_rng: SimRng,
+    /// The frame a frozen camera repeats (`vision_freeze`).
+    frozen_observation: Option<Option<vision_core::LineObservation>>,
+    /// Uplink messages lost to `link_loss` or `link_corruption`.
+    link_dropped: u64,
+    tilt_err: Rms,
     renderer: Option<ForwardRenderer>,
     vision: GroundVision,
     down_renderer: Option<DownRenderer>,
@@ -304,12 +325,20 @@ impl Sil {
     pub fn with_fc(scenario: &Scenario, seed: u64, mode: CameraMode, fc: &FcChoice) -> Result<Self> {
         scenario.validate()?;
         let m = &scenario.model;
+        let mm = &scenario.mismatch;
         let mut params = ModelParams::from_vehicle(
             &scenario.vehicle,
-            m.motor_time_constant_s,
+            m.motor_time_constant_s * mm.motor_time_constant_scale,
             m.linear_drag_n_s_per_m,
             Some(scenario.trajectory.ground_height_m as f64),
         );
+        // The simulated vehicle is not the configured one (the flight code keeps `[vehicle]`).
+        params.mass_kg *= mm.mass_scale;
+        for k in 0..3 {
+            params.inertia[k] *= mm.inertia_scale[k];
+        }
+        params.k *= mm.thrust_coeff_scale;
+        params.k_tau *= mm.drag_torque_coeff_scale;
         params.rotor_drag = m.rotor_drag_coeff;
         params.ground_effect_rotor_radius_m =
             (m.ground_effect_rotor_radius_m > 0.0).then_some(m.ground_effect_rotor_radius_m);
@@ -359,7 +388,18 @@ impl Sil {
             log_error: None,
             cost_sum: 0.0,
             background_sum: 0.0,
-            imu: ImuModel::new(&scenario.imu, seed),
+            imu: ImuModel::new(
+                &scenario.imu,
+                seed,
+                scenario.mismatch.imu_misalignment_deg,
+                params.hover_speed(),
+            ),
+            wind: crate::wind::Wind::new(&scenario.wind, seed),
+            wind_now: [0.0; 3],
+            fault_rng: SimRng::stream(seed, "link-faults"),
+            frozen_observation: None,
+            link_dropped: 0,
+            tilt_err: Rms::default(),
             renderer,
             vision: GroundVision::new(scenario),
             down_renderer,
@@ -389,7 +429,7 @@ impl Sil {
             motor_cmd: [0.0; 4],
             last_out: None,
             records: Vec::new(),
-            stats: RunStats { flow_camera: down, ..RunStats::default() },
+            stats: RunStats { flow_camera: down, min_wall_distance_m: f64::INFINITY, ..RunStats::default() },
             tracking: Rms::default(),
             estimate: Rms::default(),
             tracking_since: None,
@@ -431,16 +471,67 @@ impl Sil {
         &self.quad
     }
 
+    /// Each rotor's thrust scale under the active motor faults.
+    fn motor_faults(&self, t_s: f64) -> [f64; 4] {
+        let mut scale = [1.0; 4];
+        for f in self.scenario.faults.iter().filter(|f| f.active(t_s)) {
+            match f.kind {
+                FaultKind::MotorDegradation { motor, thrust_scale } => {
+                    scale[(motor - 1) as usize] *= thrust_scale
+                }
+                FaultKind::MotorLoss { motor } => scale[(motor - 1) as usize] = 0.0,
+                _ => {}
+            }
+        }
+        scale
+    }
+
+    /// Whether a fault of this kind acts now.
+    fn fault_active(&self, is: impl Fn(&FaultKind) -> bool) -> Option<&FaultKind> {
+        let t = self.time_s();
+        self.scenario.faults.iter().find(|f| f.active(t) && is(&f.kind)).map(|f| &f.kind)
+    }
+
+    /// Sends an uplink message over the radio: lost while the link is down, through the corrupting channel
+    /// while it corrupts (the frame's bytes, decoded as the vehicle's decoder would: a frame that fails its
+    /// checks is lost, one whose damage passes them is delivered damaged).
     fn send(&mut self, at_us: u64, msg: Uplink) {
+        if self.fault_active(|k| matches!(k, FaultKind::LinkLoss)).is_some() {
+            self.link_dropped += 1;
+            return;
+        }
+        let msg = match self.fault_active(|k| matches!(k, FaultKind::LinkCorruption { .. })) {
+            Some(FaultKind::LinkCorruption { byte_error_rate }) => {
+                let p = *byte_error_rate;
+                match corrupt(&msg, p, &mut self.fault_rng) {
+                    Some(m) => m,
+                    None => {
+                        self.link_dropped += 1;
+                        return;
+                    }
+                }
+            }
+            _ => msg,
+        };
+        self.deliver(at_us, msg);
+    }
+
+    fn deliver(&mut self, at_us: u64, msg: Uplink) {
         // Keep the queue ordered by delivery time (stable for equal times).
         let pos = self.link.iter().position(|(t, _)| *t > at_us).unwrap_or(self.link.len());
         self.link.insert(pos, (at_us, msg));
     }
 
+    /// The forward camera's true pose: its mount is the configured one turned by the mount error.
     fn camera_pose(&self) -> (Mat3, Vec3) {
         let r = self.quad.rotation();
         let r_wb = Mat3 { m: r.map(|row| row.map(|v| v as f32)) };
-        let mount = self.scenario.forward_camera_mount();
+        let mut mount = self.scenario.forward_camera_mount();
+        let e = self.scenario.mismatch.forward_camera_mount_error_deg;
+        if e != [0.0; 3] {
+            let [r, p, y] = e.map(|a| geometry::deg(a as f32));
+            mount.body_from_camera = Mat3::from_euler_zyx(r, p, y).mul_mat(&mount.body_from_camera);
+        }
         let p = self.quad.state.p;
         let center = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) + r_wb.mul_vec(mount.offset_body_m);
         (r_wb.mul_mat(&mount.body_from_camera), center)
@@ -471,15 +562,27 @@ impl Sil {
                     None => None,
                 }
             }
+            CameraMode::Analytic if !self.scenario.scene.line_visible => None,
             CameraMode::Analytic => {
                 let cam = self.scenario.forward_camera_model();
                 let target = self.scenario.line_target();
-                let sigma = self.scenario.forward_camera.analytic_noise_px;
+                // Dimmer light, noisier edges: the noise scales with the inverse of the light reaching the
+                // sensor (the renderer's gain times the exposure).
+                let light =
+                    (self.scenario.scene.light_gain * self.scenario.forward_camera.exposure).max(0.05);
+                let sigma = self.scenario.forward_camera.analytic_noise_px / light.min(1.0);
                 let rng = &mut self.edge_rng;
                 project_observation(&cam, &target, &r_wc.transpose(), center, 8.0, 2.0, || {
                     (sigma * rng.normal()) as f32
                 })
             }
+        };
+        // A frozen camera delivers the frame it froze on, again and again.
+        let observation = if self.fault_active(|k| matches!(k, FaultKind::VisionFreeze)).is_some() {
+            *self.frozen_observation.get_or_insert(observation)
+        } else {
+            self.frozen_observation = None;
+            observation
         };
         let lat = self.scenario.forward_camera.clone();
         let jitter = if lat.latency_jitter_s > 0.0 {
@@ -490,7 +593,9 @@ impl Sil {
         let deliver = self.t_us + ((lat.latency_s + jitter).max(0.0) * 1e6).round() as u64;
         let msg =
             VisionMeasurement { capture_time_us: self.t_us, frame_seq: self.frame_index as u32, observation };
-        self.send(deliver, Uplink::Vision(msg));
+        if self.fault_active(|k| matches!(k, FaultKind::VisionDropout)).is_none() {
+            self.send(deliver, Uplink::Vision(msg));
+        }
         self.frame_index += 1;
         self.stats.frames += 1;
         self.next_frame_us = ((self.frame_index as f64) * 1e6 / lat.rate_hz).round() as u64;
@@ -572,7 +677,9 @@ impl Sil {
                 result,
             };
             let deliver = self.t_us + (cfg.latency_s * 1e6).round() as u64;
-            self.send(deliver, Uplink::Flow(msg));
+            if self.fault_active(|k| matches!(k, FaultKind::FlowDropout)).is_none() {
+                self.send(deliver, Uplink::Flow(msg));
+            }
             // The truth over the pair: the mean velocity and the attitude at mid-interval.
             let dts = (self.t_us - t_prev) as f64 * 1e-6;
             let v = [0, 1, 2].map(|k| (st.p[k] - p_prev[k]) / dts);
@@ -738,9 +845,12 @@ impl Sil {
         if self.stats.modes.last().is_none_or(|(_, m)| *m != format!("{:?}", st.mode)) {
             self.stats.modes.push((t, format!("{:?}", st.mode)));
         }
-        if st.failsafe.is_some() && st.failsafe != self.last_failsafe {
-            self.stats.failsafes.push(format!("{:.2} s: {:?}", t, st.failsafe));
+        if let Some(f) = st.failsafe
+            && st.failsafe != self.last_failsafe
+        {
+            self.stats.failsafes.push((t, format!("{f:?}")));
         }
+        self.stats.estimator = out.estimator;
         self.last_failsafe = st.failsafe;
         self.stats.frames_solved = out.vision.solved;
         self.stats.frames_no_target = out.vision.no_target;
@@ -763,6 +873,11 @@ impl Sil {
             let sp = out.control.setpoint.position_m;
             let est = out.control.estimate.position_m;
             self.tracking.add([s.p[0] - sp.x as f64, s.p[1] - sp.y as f64, s.p[2] - sp.z as f64]);
+            let att = attitude_of(&quat_to_mat(s.q));
+            let e = &out.control.estimate.attitude;
+            let (er, ep) = ((e.roll as f64 - att[0]).to_degrees(), (e.pitch as f64 - att[1]).to_degrees());
+            self.tilt_err.add([er, ep, 0.0]);
+            self.stats.max_tilt_error_deg = self.stats.max_tilt_error_deg.max(er.abs()).max(ep.abs());
             self.estimate.add([est.x as f64 - s.p[0], est.y as f64 - s.p[1], est.z as f64 - s.p[2]]);
             self.stats.tracking_s = t - self.tracking_since.unwrap_or(t);
         }
@@ -809,6 +924,13 @@ impl Sil {
 
     fn check_crash(&mut self) {
         let s = self.quad.state;
+        self.stats.min_wall_distance_m = self.stats.min_wall_distance_m.min(s.p[1]);
+        let reach = self.scenario.vehicle.arm_length_m as f64
+            + self.scenario.model.ground_effect_rotor_radius_m.max(0.1);
+        if s.p[1] < reach {
+            self.stats.wall_contact = true;
+        }
+        self.stats.link_dropped = self.link_dropped;
         let r = quat_to_mat(s.q);
         let tilt = r[2][2].clamp(-1.0, 1.0).acos().to_degrees();
         if !self.quad.on_ground && self.was_airborne {
@@ -834,17 +956,28 @@ impl Sil {
 
     /// Advances one physics step. Returns `false` when the run is over (landed, crashed, or `end_us`).
     pub fn step(&mut self, end_us: u64) -> bool {
-        // Physics with the rotor commands held.
+        // Physics with the rotor commands and the wind held.
         let cmd = self.motor_cmd.map(|w| w as f64);
-        self.quad.step(self.dt_us as f64 * 1e-6, cmd);
+        let t_s = self.time_s();
+        self.quad.params.rotor_scale = self.motor_faults(t_s);
+        let h = self.dt_us as f64 * 1e-6;
+        if !self.wind.is_calm() {
+            self.wind_now = self.wind.step(t_s, h, self.quad.state.v);
+        }
+        self.quad.step_in_wind(h, cmd, self.wind_now);
         self.t_us += self.dt_us;
         self.step_count += 1;
+        let faults = if self.scenario.faults.is_empty() {
+            ImuFaults::default()
+        } else {
+            ImuFaults::at(&self.scenario.faults, self.time_s(), self.scenario.imu.rate_hz)
+        };
         if self.step_count.is_multiple_of(self.imu_every) {
-            let s = self.imu.sample(&self.quad, self.t_us);
+            let s = self.imu.sample(&self.quad, self.t_us, &faults);
             self.pending_imu.push(s);
         }
         if self.step_count.is_multiple_of(self.mag_every) {
-            self.pending_mag = Some(self.imu.mag(&self.quad));
+            self.pending_mag = Some(self.imu.mag(&self.quad, &faults));
         }
         if self.t_us >= self.next_frame_us {
             self.capture_frame();
@@ -960,9 +1093,31 @@ impl Sil {
             }
         }
         self.stats.rms_error_m = self.tracking.get();
+        let t = self.tilt_err.get();
+        self.stats.tilt_error_rms_deg = ((t[0] * t[0] + t[1] * t[1]) / 2.0).sqrt();
         self.stats.estimate_rms_error_m = self.estimate.get();
         let f = self.flow_err.get();
         self.stats.flow_rms_error_m_s = [f[0], f[1]];
         self.stats.clone()
     }
+}
+
+/// A message through a channel that flips one bit of each byte with probability `p`: what the vehicle's
+/// decoder makes of the frame (`None`: rejected).
+fn corrupt(msg: &Uplink, p: f64, rng: &mut SimRng) -> Option<Uplink> {
+    let mut buf = [0u8; protocol::frame::MAX_FRAME];
+    let mut bytes = protocol::frame::encode(msg, &mut buf).ok()?.to_vec();
+    for b in bytes.iter_mut() {
+        if rng.uniform() < p {
+            *b ^= 1 << (rng.next_u64() % 8);
+        }
+    }
+    let mut dec = protocol::frame::Decoder::new();
+    let mut out = None;
+    for b in bytes {
+        if let Some(r) = dec.push::<Uplink>(b) {
+            out = r.ok();
+        }
+    }
+    out
 }

@@ -93,11 +93,27 @@ impl Estimator {
         let yaw_innov = wrap_pi(fix.yaw_rad - yaw_past);
         let yaw_sd = fix.yaw_std_rad.max(self.params.vision_yaw_floor_rad);
         let yaw_var = yaw_sd * yaw_sd;
-        if !self.yaw_initialised {
+        // The first vision yaw sets the heading, whatever the compass said before; after that vision and
+        // compass are checked against each other, and the compass gives way (see `fuse_mag`).
+        if !self.yaw_from_vision {
             self.reset_yaw(yaw_innov, yaw_var);
+            self.yaw_from_vision = true;
+            self.last_vision_yaw_us = Some(now_us);
             outcome = FuseOutcome::Initialised;
-        } else if !self.update(&Self::yaw_row(&self.q.to_mat3()), yaw_innov, yaw_var, true) {
-            self.counters.fixes_rejected += 1;
+        } else if self.update(&Self::yaw_row(&self.q.to_mat3()), yaw_innov, yaw_var, true) {
+            self.vision_yaw_rejections = 0;
+            self.last_vision_yaw_us = Some(now_us);
+        } else {
+            self.counters.vision_yaw_rejected += 1;
+            self.vision_yaw_rejections = self.vision_yaw_rejections.saturating_add(1);
+            // Consistently refused: the heading has gone wrong (a compass dragged it while vision was out);
+            // vision wins.
+            if self.vision_yaw_rejections >= self.params.vision_yaw_reset_after {
+                self.reset_yaw(yaw_innov, yaw_var);
+                self.vision_yaw_rejections = 0;
+                self.last_vision_yaw_us = Some(now_us);
+                self.counters.yaw_resets += 1;
+            }
         }
         // Position: the first fix of each horizontal axis initialises it.
         let floor = self.params.vision_position_floor_m;
@@ -194,16 +210,36 @@ impl Estimator {
         if m_w.x * m_w.x + m_w.y * m_w.y < 1e-12 {
             return FuseOutcome::Invalid;
         }
-        let innov = wrap_pi(libm::atan2f(b[1], b[0]) - libm::atan2f(m_w.y, m_w.x));
+        let raw = wrap_pi(libm::atan2f(b[1], b[0]) - libm::atan2f(m_w.y, m_w.x));
         let var = self.params.mag_heading_sigma_rad * self.params.mag_heading_sigma_rad;
         if !self.yaw_initialised {
-            self.reset_yaw(innov, var);
+            self.reset_yaw(raw, var);
             return FuseOutcome::Initialised;
         }
+        let now = self.last_imu_us.unwrap_or(0);
+        let vision_fresh = self
+            .last_vision_yaw_us
+            .is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= self.params.mag_vision_window_s);
+        let innov = if vision_fresh {
+            // Vision holds the heading: learn the compass's offset from it (steel, currents), and refuse a
+            // compass that disagrees.
+            let a = self.params.mag_offset_learn_rate;
+            let off = self.mag_offset.map_or(raw, |o| o + a * wrap_pi(raw - o));
+            self.mag_offset = Some(off);
+            if libm::fabsf(raw) > self.params.mag_consistency_rad {
+                self.counters.mag_rejected += 1;
+                return FuseOutcome::Rejected;
+            }
+            raw
+        } else {
+            // Without vision the compass holds the heading, less its learned offset.
+            wrap_pi(raw - self.mag_offset.unwrap_or(0.0))
+        };
         if self.update(&Self::yaw_row(&r), innov, var, true) {
             self.counters.mag_accepted += 1;
             FuseOutcome::Accepted
         } else {
+            self.counters.mag_rejected += 1;
             FuseOutcome::Rejected
         }
     }

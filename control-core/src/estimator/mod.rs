@@ -173,8 +173,12 @@ pub struct EstimatorCounters {
     pub flow_rejected: u32,
     /// Magnetometer headings used.
     pub mag_accepted: u32,
-    /// Magnetometer headings outside the gate.
+    /// Magnetometer headings refused: outside the gate, or disagreeing with the vision yaw.
     pub mag_rejected: u32,
+    /// Vision yaws outside the gate.
+    pub vision_yaw_rejected: u32,
+    /// Headings reset to the vision yaw after consistent refusals.
+    pub yaw_resets: u32,
     /// Blocks of samples at rest (zero velocity, gravity and zero rate fused).
     pub still_blocks: u32,
     /// Blocks in flight whose rotor-drag measurement was fused.
@@ -212,6 +216,10 @@ pub struct Estimator {
     thrust_axis_learned: bool,
     tilt_aligned: bool,
     still_initialised: bool,
+    yaw_from_vision: bool,
+    last_vision_yaw_us: Option<u64>,
+    vision_yaw_rejections: u8,
+    mag_offset: Option<f32>,
 }
 
 fn zero_cov() -> [[f32; N]; N] {
@@ -270,6 +278,10 @@ impl Estimator {
             thrust_axis_learned: false,
             tilt_aligned: false,
             still_initialised: false,
+            yaw_from_vision: false,
+            last_vision_yaw_us: None,
+            vision_yaw_rejections: 0,
+            mag_offset: None,
         }
     }
 

@@ -24,14 +24,31 @@ pub(crate) enum CameraSim {
     Analytic,
 }
 
+impl CameraSim {
+    pub(crate) fn mode(self) -> sim_host::sil::CameraMode {
+        match self {
+            CameraSim::Rendered => sim_host::sil::CameraMode::Rendered,
+            CameraSim::Analytic => sim_host::sil::CameraMode::Analytic,
+        }
+    }
+}
+
 #[derive(Args, Debug)]
 pub(crate) struct FlyArgs {
     /// Scenario: a built-in name (`paper`) or a TOML file.
     #[arg(long, default_value = "paper")]
     pub(crate) scenario: String,
-    /// Seed of every noise stream (a run is a pure function of scenario, seed and camera mode).
+    /// Seed of every noise stream (a run is a pure function of scenario, seed and camera mode). With `--vary`,
+    /// the sweep's seed.
     #[arg(long, default_value_t = 1)]
     pub(crate) seed: u64,
+    /// Fly one run of a sweep alone: the distributions the sweep drew from (docs/robustness.md), with `--run`.
+    #[arg(long, value_name = "VARY.toml", requires = "run")]
+    pub(crate) vary: Option<PathBuf>,
+    /// The sweep's run index K (0-based, as in runs.csv): the scenario is the base drawn for run K and the
+    /// seed is the one run K of `sim-host sweep --seed SEED` flew with.
+    #[arg(long, value_name = "K", requires = "vary")]
+    pub(crate) run: Option<u32>,
     /// Longest simulated time in seconds (default: the scenario's limit; the run ends when it has landed).
     #[arg(long)]
     pub(crate) duration: Option<f64>,
@@ -58,24 +75,31 @@ pub(crate) struct FlyArgs {
 }
 pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
     use sim_host::fly::{FlyOptions, fly};
-    use sim_host::sil::CameraMode;
-    let scenario = Scenario::load(&a.scenario)?;
+    let mut scenario = Scenario::load(&a.scenario)?;
+    let mut seed = a.seed;
+    if let (Some(vary), Some(k)) = (&a.vary, a.run) {
+        let vary = sim_host::sweep::vary::Vary::load(vary)?;
+        let draw = sim_host::sweep::run_scenario(&scenario, &vary, a.seed, k)?;
+        seed = sim_host::sweep::run_seed(a.seed, k);
+        eprintln!("run {k} of sweep seed {}: seed {seed}", a.seed);
+        for (name, value) in &draw.values {
+            eprintln!("  {name} = {value}");
+        }
+        scenario = draw.scenario;
+    }
     if let Some(d) = a.duration
         && !(d > 0.0 && d.is_finite())
     {
         bail!("--duration must be positive");
     }
-    let camera = match a.camera {
-        CameraSim::Rendered => CameraMode::Rendered,
-        CameraSim::Analytic => CameraMode::Analytic,
-    };
+    let camera = a.camera.mode();
     let fc = match sim_host::fil::parse_fc(&a.fc)? {
         None => sim_host::sil::FcChoice::Sil,
         Some(elf) => sim_host::sil::FcChoice::Qemu(sim_host::fil::QemuOptions::new(elf)),
     };
     let opts = FlyOptions {
         scenario,
-        seed: a.seed,
+        seed,
         duration_s: a.duration,
         camera,
         out: a.out.clone(),

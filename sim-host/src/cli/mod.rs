@@ -5,4 +5,5 @@ pub(crate) mod fly;
 pub(crate) mod import;
 pub(crate) mod render;
 pub(crate) mod replay;
+pub(crate) mod sweep;
 pub(crate) mod vision;

@@ -1,0 +1,151 @@
+//! `sim-host sweep`: a campaign of seeded flights with the scenario drawn from distributions.
+use super::common::progress_bar;
+use super::fly::CameraSim;
+use anyhow::{Result, bail};
+use clap::{Args, Subcommand};
+use sim_host::Scenario;
+use sim_host::sweep::vary::Vary;
+use sim_host::sweep::{Shard, SweepOptions};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+#[derive(Args, Debug)]
+#[command(args_conflicts_with_subcommands = true)]
+pub(crate) struct SweepArgs {
+    #[command(subcommand)]
+    pub(crate) merge: Option<SweepCommand>,
+    #[command(flatten)]
+    pub(crate) run: Option<SweepRunArgs>,
+}
+
+#[derive(Subcommand, Debug)]
+pub(crate) enum SweepCommand {
+    /// Merge the outputs of a sweep's shards into the report the unsharded sweep gives.
+    Merge(MergeArgs),
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct MergeArgs {
+    /// The shards' output directories.
+    #[arg(required = true)]
+    pub(crate) dirs: Vec<PathBuf>,
+    /// Where the merged runs.csv, report.json and histograms go.
+    #[arg(long)]
+    pub(crate) out: PathBuf,
+}
+
+#[derive(Args, Debug)]
+pub(crate) struct SweepRunArgs {
+    /// The base scenario: a built-in name (`paper`) or a TOML file.
+    #[arg(long, default_value = "paper")]
+    pub(crate) scenario: String,
+    /// The distributions each run's scenario is drawn from (docs/robustness.md).
+    #[arg(long, value_name = "VARY.toml")]
+    pub(crate) vary: PathBuf,
+    /// Runs in the whole sweep.
+    #[arg(long)]
+    pub(crate) runs: u32,
+    /// The sweep's seed: run K flies with a seed derived from (SEED, K).
+    #[arg(long, default_value_t = 1)]
+    pub(crate) seed: u64,
+    /// How the forward camera is simulated.
+    #[arg(long, value_enum, default_value = "analytic")]
+    pub(crate) camera: CameraSim,
+    /// Fly every N-th run starting at I (1-based), e.g. 2/4. Without it, a Slurm job array
+    /// (SLURM_ARRAY_TASK_ID, SLURM_ARRAY_TASK_COUNT) or a Kubernetes Indexed Job (JOB_COMPLETION_INDEX with
+    /// --shards) selects the shard.
+    #[arg(long, value_name = "I/N")]
+    pub(crate) shard: Option<String>,
+    /// The number of shards of a Kubernetes Indexed Job (with JOB_COMPLETION_INDEX).
+    #[arg(long, value_name = "N")]
+    pub(crate) shards: Option<u32>,
+    /// Output directory: runs.csv, report.json, sweep.json, histogram_rms_{x,y,z}.png.
+    #[arg(long)]
+    pub(crate) out: PathBuf,
+}
+
+pub(crate) fn sweep(a: &SweepArgs) -> Result<ExitCode> {
+    match (&a.merge, &a.run) {
+        (Some(SweepCommand::Merge(m)), _) => merge(m),
+        (None, Some(r)) => run(r),
+        (None, None) => {
+            bail!("give --scenario/--vary/--runs/--out, or `merge DIR... --out DIR` (see --help)")
+        }
+    }
+}
+
+fn run(a: &SweepRunArgs) -> Result<ExitCode> {
+    if a.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    let shard = match &a.shard {
+        Some(s) => Shard::parse(s)?,
+        None => Shard::from_env(|k| std::env::var(k).ok(), a.shards)?.unwrap_or(Shard::ALL),
+    };
+    let opts = SweepOptions {
+        scenario: Scenario::load(&a.scenario)?,
+        scenario_arg: a.scenario.clone(),
+        vary: Vary::load(&a.vary)?,
+        vary_arg: a.vary.display().to_string(),
+        runs: a.runs,
+        seed: a.seed,
+        camera: a.camera.mode(),
+        shard,
+        out: a.out.clone(),
+    };
+    let mine = (0..a.runs).filter(|k| shard.has(*k)).count() as u64;
+    let bar =
+        progress_bar(mine, "{spinner} flying [{bar:40}] {pos}/{len} runs ({elapsed} elapsed, {eta} left)");
+    let done = AtomicU64::new(0);
+    let t0 = std::time::Instant::now();
+    let r = sim_host::sweep::sweep(&opts, &|| {
+        bar.set_position(done.fetch_add(1, Ordering::Relaxed) + 1);
+    })?;
+    bar.finish_and_clear();
+    let wall = t0.elapsed().as_secs_f64();
+    let cores = rayon::current_num_threads();
+    eprintln!(
+        "shard {}/{}: {mine} runs in {wall:.1} s on {cores} cores ({:.1} flights per core-minute)",
+        shard.index + 1,
+        shard.count,
+        mine as f64 / (wall * cores as f64 / 60.0)
+    );
+    print_report(&r.report, &r.files)
+}
+
+fn merge(a: &MergeArgs) -> Result<ExitCode> {
+    let r = sim_host::sweep::merge(&a.dirs, &a.out)?;
+    print_report(&r.report, &r.files)
+}
+
+fn print_report(r: &serde_json::Value, files: &[PathBuf]) -> Result<ExitCode> {
+    let f = |v: &serde_json::Value| v.as_f64().map_or("-".to_string(), |x| format!("{:.1}", 1e3 * x));
+    eprintln!(
+        "{} runs: {} crashed, {} landed and disarmed, {} wall contacts; p95 RMS error x {} y {} z {} mm, largest x {} y {} z {} mm",
+        r["runs"],
+        r["crashed"],
+        r["landed"],
+        r["wall_contacts"],
+        f(&r["p95_rms_error_m"]["x"]),
+        f(&r["p95_rms_error_m"]["y"]),
+        f(&r["p95_rms_error_m"]["z"]),
+        f(&r["max_rms_error_m"]["x"]),
+        f(&r["max_rms_error_m"]["y"]),
+        f(&r["max_rms_error_m"]["z"]),
+    );
+    for w in r["failed"].as_array().into_iter().flatten().take(10) {
+        eprintln!(
+            "  failed run {} ({}): {}",
+            w["run"],
+            w["why"].as_str().unwrap_or(""),
+            w["command"].as_str().unwrap_or("")
+        );
+    }
+    eprintln!("wrote:");
+    for p in files {
+        eprintln!("  {}", p.display());
+    }
+    let failed = r["failures"].as_u64().unwrap_or(0);
+    Ok(if failed > 0 { ExitCode::from(3) } else { ExitCode::SUCCESS })
+}
