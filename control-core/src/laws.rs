@@ -173,8 +173,10 @@ impl Controller {
         let de_w = est.velocity_m_s - sp.velocity_m_s;
         let e_n = WORLD_FROM_NAV.tmul_vec(e_w);
         let de_n = WORLD_FROM_NAV.tmul_vec(de_w);
-        // The reference acceleration plus what overcomes the rotors' drag at the reference velocity.
-        let a_n = WORLD_FROM_NAV.tmul_vec(sp.accel_m_s2 + sp.velocity_m_s * self.drag_per_s);
+        // The reference acceleration plus what overcomes the rotors' drag at the reference velocity through
+        // the estimated wind (the wind's push is fed forward, not left to the integrals).
+        let air = sp.velocity_m_s - Vec3::new(est.wind_m_s.x, est.wind_m_s.y, 0.0);
+        let a_n = WORLD_FROM_NAV.tmul_vec(sp.accel_m_s2 + air * self.drag_per_s);
         let (sy, cy) = geometry::trig::sin_cos(yaw);
         let head = |x: Vec3| Vec3::new(cy * x.x + sy * x.y, -sy * x.x + cy * x.y, x.z);
         let (e_h, de_h, a_h) = (head(e_n), head(de_n), head(a_n));

@@ -57,6 +57,9 @@ pub const SETPOINT_RATE_MARGIN: f32 = 1.5;
 /// A take-off is done when the height is this close to the mission's, for `settle_s` (m).
 pub const TAKEOFF_CLOSE_M: f32 = 0.05;
 
+/// The yaw reference turns to the mission's yaw at most this fast once vision gives the heading (rad/s).
+pub const YAW_SETPOINT_RATE_RAD_S: f32 = 0.5;
+
 /// A take-off that timed out this high above the pad hovers; lower, it lands (m).
 pub const TAKEOFF_AIRBORNE_M: f32 = 0.1;
 
@@ -286,6 +289,10 @@ pub struct ControlCore {
     contact_since_us: Option<u64>,
     accel_lp: Option<f32>,
     resume_climb: bool,
+    /// The vision-yaw state the yaw reference was last seeded for: (yaw from vision, yaw resets).
+    yaw_frame: (bool, u32),
+    /// The sweep a vision hold interrupted, resumed when vision returns.
+    paused_sweep: Option<Sweep>,
     limiter: laws::SetpointLimiter,
 }
 
@@ -330,6 +337,8 @@ impl ControlCore {
             contact_since_us: None,
             accel_lp: None,
             resume_climb: false,
+            paused_sweep: None,
+            yaw_frame: (false, 0),
             limiter: laws::SetpointLimiter::new(),
         }
     }
@@ -375,6 +384,7 @@ impl ControlCore {
     fn motors_off(&mut self, mode: FlightMode) {
         self.mode = mode;
         self.sweep = None;
+        self.paused_sweep = None;
         self.vertical = None;
         self.controller.reset();
     }
@@ -455,6 +465,7 @@ impl ControlCore {
         let t = self.params.trajectory;
         self.mode = FlightMode::Landing;
         self.sweep = None;
+        self.paused_sweep = None;
         self.hold.x = est.position_m.x;
         self.hold.y = est.position_m.y;
         // The descent does not stop at the floor: after touchdown the reference goes on down, the altitude
@@ -583,8 +594,8 @@ impl ControlCore {
             {
                 self.failsafe = Some(Failsafe::VisionLost);
                 self.resume_climb = self.mode == FlightMode::TakeOff;
+                self.paused_sweep = self.sweep.take();
                 self.mode = FlightMode::VisionHold;
-                self.sweep = None;
                 self.hold_since_us = now;
                 // Hold where the vehicle is; the setpoint limiter ramps there from where it was.
                 self.hold = est.position_m;
@@ -599,6 +610,11 @@ impl ControlCore {
                         self.hold.z = traj.z_d_m;
                         self.start_vertical(est.position_m.z, traj.z_d_m, traj.takeoff_speed_m_s, now);
                         self.settled_since_us = None;
+                    } else if let Some(mut sw) = self.paused_sweep.take() {
+                        // A sweep goes on with its pass from where the vehicle is.
+                        sw.resume(est.position_m.x, now);
+                        self.sweep = Some(sw);
+                        self.mode = FlightMode::Tracking;
                     } else {
                         self.mode = FlightMode::Hover;
                     }
@@ -607,6 +623,24 @@ impl ControlCore {
                     self.begin_landing(now, &est);
                 }
             }
+        }
+
+        // The yaw reference. Until vision gives the heading in the line's frame the vehicle keeps the heading
+        // it has (a disturbed compass must not turn it away from the line); when vision takes over, or resets
+        // the heading, the reference starts from the new estimate and turns to the mission's yaw at a bounded
+        // rate.
+        if self.mode.airborne() {
+            let frame = (self.estimator.yaw_from_vision(), self.estimator.counters().yaw_resets);
+            if !frame.0 || frame != self.yaw_frame {
+                self.yaw_d = est.attitude.yaw;
+            } else {
+                let max = YAW_SETPOINT_RATE_RAD_S * dt;
+                self.yaw_d = geometry::wrap_pi(
+                    self.yaw_d
+                        + geometry::clamp_finite(geometry::wrap_pi(traj.yaw_d_rad - self.yaw_d), -max, max),
+                );
+            }
+            self.yaw_frame = frame;
         }
 
         // Mission progress and the reference.

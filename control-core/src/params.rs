@@ -150,7 +150,10 @@ impl Default for AltitudeGains {
         Self {
             a_z1: 4.5,
             a_z2: 6.25,
-            integral_gain: 1.0,
+            // With the PD poles above, s^3 + a_z1 s^2 + a_z2 s + k_i has its roots at -2.45 and
+            // -1.03 +- 0.41j: a thrust error (mass, thrust coefficient, battery) is integrated out in about a
+            // second, well damped.
+            integral_gain: 3.0,
             integral_limit_m_s2: 4.0,
             min_cos_tilt: 0.5,
             max_thrust_to_weight: 2.0,
@@ -434,6 +437,9 @@ pub struct EstimatorParams {
     pub mag_offset_learn_rate: f32,
     /// Consecutive refused vision yaws after which the heading is reset to vision's.
     pub vision_yaw_reset_after: u8,
+    /// Consecutive refused vision positions after which the position is reset to vision's (the estimate
+    /// drifted while vision was out, as PX4's EKF2 resets to its aiding source after a fusion timeout).
+    pub vision_position_reset_after: u8,
     /// Innovations beyond this many standard deviations are rejected.
     pub gate_sigma: f32,
     /// Fixes older than this are not fused (s).
@@ -456,6 +462,10 @@ pub struct EstimatorParams {
     /// Standard deviation of a block's mean specific force perpendicular to the thrust axis in the drag
     /// model: vibration and unmodelled aerodynamics (m/s^2).
     pub drag_sigma_m_s2: f32,
+    /// Standard deviation of the horizontal wind before the drag model has seen any (m/s).
+    pub initial_wind_sigma_m_s: f32,
+    /// Random walk of the horizontal wind (m/s per sqrt(s)); its variance is capped at the initial one.
+    pub wind_walk_m_s: f32,
     /// The rotors' thrust axis in the body frame (the drag model's reference; body z for this airframe).
     pub thrust_axis_body: [f32; 3],
     /// Time constant with which the thrust axis is learned in flight from the specific force's direction
@@ -478,8 +488,8 @@ impl Default for EstimatorParams {
         Self {
             gyro_noise: 1e-3,
             accel_noise: 0.03,
-            gyro_bias_walk: 3e-5,
-            accel_bias_walk: 3e-4,
+            gyro_bias_walk: 1e-3,
+            accel_bias_walk: 3e-3,
             vision_position_floor_m: 0.004,
             vision_yaw_floor_rad: 0.002,
             mag_heading_sigma_rad: 0.1,
@@ -487,6 +497,7 @@ impl Default for EstimatorParams {
             mag_vision_window_s: 1.0,
             mag_offset_learn_rate: 0.02,
             vision_yaw_reset_after: 5,
+            vision_position_reset_after: 10,
             gate_sigma: 5.0,
             max_fix_age_s: 0.25,
             mag_field_world: [0.2, -0.05, -0.4],
@@ -497,6 +508,8 @@ impl Default for EstimatorParams {
             handheld_gravity_sigma_m_s2: 2.0,
             drag_coeff_per_s: 0.3,
             drag_sigma_m_s2: 0.3,
+            initial_wind_sigma_m_s: 2.0,
+            wind_walk_m_s: 0.1,
             thrust_axis_body: [0.0, 0.0, 1.0],
             thrust_axis_learn_s: 0.0,
             max_imu_gap_s: 0.25,
@@ -533,6 +546,11 @@ impl EstimatorParams {
             "must lie in (0, 1]",
         )?;
         check(self.vision_yaw_reset_after >= 1, "estimator.vision_yaw_reset_after", "must be at least 1")?;
+        check(
+            self.vision_position_reset_after >= 1,
+            "estimator.vision_position_reset_after",
+            "must be at least 1",
+        )?;
         check(
             self.gate_sigma >= 2.0 && self.gate_sigma.is_finite(),
             "estimator.gate_sigma",
@@ -586,6 +604,16 @@ impl EstimatorParams {
             self.initial_accel_bias_sigma_m_s2 > 0.0 && self.initial_accel_bias_sigma_m_s2 <= 5.0,
             "estimator.initial_accel_bias_sigma_m_s2",
             "must lie in (0, 5] m/s^2",
+        )?;
+        check(
+            self.initial_wind_sigma_m_s > 0.0 && self.initial_wind_sigma_m_s <= 20.0,
+            "estimator.initial_wind_sigma_m_s",
+            "must lie in (0, 20] m/s",
+        )?;
+        check(
+            self.wind_walk_m_s > 0.0 && self.wind_walk_m_s <= 5.0,
+            "estimator.wind_walk_m_s",
+            "must lie in (0, 5] m/s per sqrt(s)",
         )?;
         self.motion.validate()
     }
@@ -700,7 +728,8 @@ pub struct FailsafeParams {
     pub vision_hold_after_s: f32,
     /// Still no fix this long after the hold began: land (s).
     pub vision_land_after_s: f32,
-    /// No message from the ground station for this long: land (s).
+    /// No message from the ground station for this long: land (s). Before that the vehicle holds as when
+    /// vision is lost (the fixes and the flow come over the link), and goes on when the link returns.
     pub link_land_after_s: f32,
     /// No IMU sample for this long: motors off (s).
     pub imu_timeout_s: f32,
@@ -725,7 +754,7 @@ impl Default for FailsafeParams {
         Self {
             vision_hold_after_s: 0.5,
             vision_land_after_s: 3.0,
-            link_land_after_s: 1.0,
+            link_land_after_s: 3.0,
             imu_timeout_s: 0.05,
             max_arming_tilt_rad: 0.15,
             crash_tilt_rad: 1.2,

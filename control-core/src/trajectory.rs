@@ -110,6 +110,13 @@ impl Sweep {
         }
     }
 
+    /// Goes on with the current pass from `x` (where the vehicle is after a hold), toward the same end.
+    pub fn resume(&mut self, x: f32, now_us: u64) {
+        let to = if self.forward { self.range[1] } else { self.range[0] };
+        self.current = Move::new(x, to, self.speed, self.accel);
+        self.pass_start_us = now_us;
+    }
+
     /// Whether all passes are done.
     pub fn finished(&self) -> bool {
         self.passes_done >= self.passes_total

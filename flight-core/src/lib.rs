@@ -115,6 +115,9 @@ pub enum FrameOutcome {
     Rejected(PoseError),
     /// A pose.
     Solved(PoseSolution),
+    /// The same observation as the frame before, bit for bit: a frozen camera or driver repeating its last
+    /// frame with new times (two real frames never agree to the last bit of their edge statistics).
+    Frozen,
 }
 
 /// Counters of the vision frames the stack received.
@@ -133,6 +136,8 @@ pub struct VisionCounters {
     pub rejected: u32,
     /// Frames dropped unsolved because newer ones filled the solve queue (the background work fell behind).
     pub dropped: u32,
+    /// Frames refused as repeats of the frame before ([`FrameOutcome::Frozen`]).
+    pub frozen: u32,
 }
 
 /// A frame waiting for its pose solve: the measurement and the estimator's attitude at its capture time.
@@ -223,6 +228,8 @@ pub struct FlightStack {
     jobs: heapless::Deque<SolveJob, SOLVE_QUEUE>,
     /// Solved frames waiting for the next step.
     solved: heapless::Vec<(u64, FrameOutcome), SOLVE_QUEUE>,
+    /// The last frame's observation, to tell a frozen camera.
+    last_observation: Option<vision_core::LineObservation>,
 }
 
 impl FlightStack {
@@ -243,6 +250,7 @@ impl FlightStack {
             gyro: GyroHistory::new(),
             jobs: heapless::Deque::new(),
             solved: heapless::Vec::new(),
+            last_observation: None,
         })
     }
 
@@ -318,6 +326,7 @@ impl FlightStack {
             FrameOutcome::NoTarget => self.counters.no_target += 1,
             FrameOutcome::NoAttitude | FrameOutcome::Rejected(_) => self.counters.rejected += 1,
             FrameOutcome::Solved(_) => self.counters.solved += 1,
+            FrameOutcome::Frozen => self.counters.frozen += 1,
         }
     }
 
@@ -359,6 +368,13 @@ impl FlightStack {
                 Uplink::ParamGet(id) => param_reply = Some(self.control.get_param(*id)),
                 Uplink::Vision(m) => {
                     self.counters.frames += 1;
+                    let repeated = m.observation.is_some() && m.observation == self.last_observation;
+                    self.last_observation = m.observation;
+                    if repeated {
+                        self.count(&FrameOutcome::Frozen);
+                        frame = Some(FrameOutcome::Frozen);
+                        continue;
+                    }
                     match self.job(m) {
                         Some(job) => {
                             if self.jobs.is_full() {

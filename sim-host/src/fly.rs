@@ -167,6 +167,7 @@ pub fn summary_json(opts: &FlyOptions, st: &RunStats, wall: f64, files: &[PathBu
             "solved": st.frames_solved,
             "no_target": st.frames_no_target,
             "rejected": st.frames_rejected,
+            "frozen": st.frames_frozen,
         },
         "flow_velocity_rms_error_m_s": if st.flow_camera {
             json!({"x": r6(st.flow_rms_error_m_s[0]), "y": r6(st.flow_rms_error_m_s[1])})

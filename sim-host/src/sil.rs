@@ -29,6 +29,7 @@ use geometry::{Mat3, Vec3};
 use protocol::{FlowMeasurement, Uplink, VisionMeasurement};
 use std::collections::VecDeque;
 use vision_core::observation::project_observation;
+use vision_core::observation::within_detector_limits;
 
 /// How the forward camera is simulated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -182,6 +183,8 @@ pub struct RunStats {
     pub frames_no_target: u32,
     /// Frames the vehicle rejected.
     pub frames_rejected: u32,
+    /// Frames the vehicle refused as repeats of the one before (a frozen camera).
+    pub frames_frozen: u32,
     /// Failsafes that acted, in order: time (s) and which (`VisionLost`, ...).
     pub failsafes: Vec<(f64, String)>,
     /// Whether a rotor came within reach of the wall (the centre closer than the arm and a rotor radius).
@@ -572,9 +575,12 @@ impl Sil {
                     (self.scenario.scene.light_gain * self.scenario.forward_camera.exposure).max(0.05);
                 let sigma = self.scenario.forward_camera.analytic_noise_px / light.min(1.0);
                 let rng = &mut self.edge_rng;
+                // Only what the detector would report: a sliver of an edge in the image's corner is not a
+                // target (vision_core::observation::within_detector_limits).
                 project_observation(&cam, &target, &r_wc.transpose(), center, 8.0, 2.0, || {
                     (sigma * rng.normal()) as f32
                 })
+                .and_then(|o| within_detector_limits(o, cam.focal_px(), self.vision.detector_params()))
             }
         };
         // A frozen camera delivers the frame it froze on, again and again.
@@ -855,6 +861,7 @@ impl Sil {
         self.stats.frames_solved = out.vision.solved;
         self.stats.frames_no_target = out.vision.no_target;
         self.stats.frames_rejected = out.vision.rejected;
+        self.stats.frames_frozen = out.vision.frozen;
         self.stats.flow = out.flow_counters;
         self.stats.flow_fused = [out.estimator.flow_accepted, out.estimator.flow_rejected];
         if let Some(FlowOutcome::Velocity { t_next_us, velocity, .. }) = out.flow {

@@ -90,6 +90,11 @@ impl GroundVision {
         }
     }
 
+    /// The detector's tuning.
+    pub fn detector_params(&self) -> &DetectorParams {
+        &self.detector
+    }
+
     /// Detects the line.
     pub fn detect(&mut self, img: &RgbImage) -> Result<LineObservation, NoTargetReason> {
         let cam = self.scenario.forward_camera_model();

@@ -236,6 +236,30 @@ pub fn project_observation(
     Some(LineObservation { top: stats[0]?, bottom: stats[1]?, start_end: stats[2], finish_end: stats[3] })
 }
 
+/// An analytic observation cut to what the detector would report (the detector's own limits, see
+/// [`crate::detect`]): each long edge at least `min_long_edge_points` pixels long (the detector measures one
+/// point per image column) and at least `min_inlier_fraction` of the longer one (columns where one edge is
+/// clipped count against the band), the band at least `min_length_px` long, and an end edge with fewer than
+/// `min_end_points` pixels dropped. `None` when the detector would find no target.
+pub fn within_detector_limits(
+    obs: LineObservation,
+    focal_px: f32,
+    params: &crate::detect::DetectorParams,
+) -> Option<LineObservation> {
+    // Points of an edge are spaced evenly, so its length is sqrt(12) times their spread along it.
+    let length_px = |s: &EdgeStats| 3.464_101_6 * s.spread * focal_px;
+    let (top, bottom) = (length_px(&obs.top), length_px(&obs.bottom));
+    let (short, long) = (top.min(bottom), top.max(bottom));
+    if short < params.min_long_edge_points as f32
+        || short < params.min_inlier_fraction * long
+        || long < params.min_length_px
+    {
+        return None;
+    }
+    let end = |s: Option<EdgeStats>| s.filter(|s| length_px(s) >= params.min_end_points as f32);
+    Some(LineObservation { start_end: end(obs.start_end), finish_end: end(obs.finish_end), ..obs })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -261,5 +285,51 @@ mod tests {
         let expected = 0.01 * 1.01f32.sqrt() * (50.0f32 * 51.0 / 3.0).sqrt();
         assert!((s.spread - expected).abs() < 1e-4, "{} {expected}", s.spread);
         assert!(EdgeStats::from_points([Vec2::ZERO].into_iter()).is_none());
+    }
+
+    #[test]
+    fn the_analytic_camera_keeps_to_the_detectors_limits() {
+        use geometry::frames::{Attitude, BODY_FROM_FORWARD_CAMERA};
+        let cam = CameraModel::PAPER_FORWARD;
+        let target = crate::target::LineTarget::PAPER;
+        let params = crate::detect::DetectorParams::default();
+        let r_cw = |yaw: f32| {
+            Attitude::new(0.0, 0.0, yaw).world_from_body().mul_mat(&BODY_FROM_FORWARD_CAMERA).transpose()
+        };
+        // The paper's hover point: both edges long, both ends in view, nothing changed.
+        let full =
+            project_observation(&cam, &target, &r_cw(0.0), Vec3::new(1.15, 1.3, 0.8), 8.0, 2.0, || 0.0)
+                .unwrap();
+        assert!(full.start_end.is_some() && full.finish_end.is_some());
+        assert_eq!(within_detector_limits(full, cam.focal_px(), &params), Some(full));
+        // Turned so far that the band leaves the image but for its end: the projection still reports a few
+        // points of each edge, the detector would not.
+        let mut seen_cut = false;
+        for k in 0..250 {
+            let yaw = 0.6 + 0.004 * k as f32;
+            let Some(o) =
+                project_observation(&cam, &target, &r_cw(yaw), Vec3::new(1.15, 1.3, 0.8), 8.0, 2.0, || 0.0)
+            else {
+                continue;
+            };
+            let px = |s: &EdgeStats| 3.464 * s.spread * cam.focal_px();
+            let kept = within_detector_limits(o, cam.focal_px(), &params);
+            assert_eq!(
+                kept.is_none(),
+                px(&o.top).min(px(&o.bottom)) < 20.0 || px(&o.top).max(px(&o.bottom)) < 40.0,
+                "yaw {yaw}"
+            );
+            seen_cut |= kept.is_none();
+        }
+        assert!(seen_cut, "no pose near the image edge was tried");
+        let mut clipped = full;
+        clipped.top.spread = 5.0 / (3.464 * cam.focal_px());
+        assert!(within_detector_limits(clipped, cam.focal_px(), &params).is_none(), "a 5 px top edge");
+        let mut short_end = full;
+        if let Some(e) = short_end.start_end.as_mut() {
+            e.spread = 3.0 / (3.464 * cam.focal_px());
+        }
+        let kept = within_detector_limits(short_end, cam.focal_px(), &params).unwrap();
+        assert!(kept.start_end.is_none() && kept.finish_end.is_some(), "a 3 px end edge is dropped");
     }
 }

@@ -1,6 +1,6 @@
 //! The estimator's measurements: vision fixes, optical-flow velocity, magnetometer heading, and the
 //! accelerometer's own aiding (still: zero velocity, gravity, zero rate; carried: gravity; flying: rotor drag).
-use super::{BodyVelocity, Estimator, FuseOutcome, IBA, IBG, IP, ITH, IV, N, PositionFix, wrap_pi};
+use super::{BodyVelocity, Estimator, FuseOutcome, IBA, IBG, IP, ITH, IV, IW, N, PositionFix, wrap_pi};
 use crate::GRAVITY;
 use crate::motion::{MotionClass, MotionReport};
 use geometry::frames::Attitude;
@@ -115,51 +115,75 @@ impl Estimator {
                 self.counters.yaw_resets += 1;
             }
         }
-        // Position: the first fix of each horizontal axis initialises it.
+        // Position. The first fix of each horizontal axis initialises it. Then the fix is tested as a whole:
+        // one axis outside its gate makes the fix inconsistent, and fusing the other axes would drag the
+        // refused one along through their correlations (after a long dead-reckoning those are strong). A fix
+        // refused `vision_position_reset_after` times in a row means the estimate has drifted (vision was
+        // out): the position is reset to the fix.
         let floor = self.params.vision_position_floor_m;
-        let mut corr = Vec3::ZERO;
-        let mut any_rejected = false;
-        for axis in 0..3 {
-            if axis == 0 && !fix.x_observed {
-                continue;
-            }
-            let meas = fix.position_m[axis];
-            let std = fix.position_std_m[axis].max(floor);
-            if axis < 2 && !self.xy_initialised[axis] {
-                let moved = self.p[axis] - past.p[axis];
-                let d = meas + moved - self.p[axis];
-                let mut dx = [0.0; N];
-                dx[IP + axis] = d;
-                self.inject(&dx);
-                for i in 0..N {
-                    self.cov[IP + axis][i] = 0.0;
-                    self.cov[i][IP + axis] = 0.0;
-                }
-                self.cov[IP + axis][IP + axis] = std * std;
+        let observed = |axis: usize| axis != 0 || fix.x_observed;
+        let std_of = |axis: usize| fix.position_std_m[axis].max(floor);
+        let moved = self.p - past.p;
+        let mut initialised = false;
+        for axis in 0..2 {
+            if observed(axis) && !self.xy_initialised[axis] {
+                self.reset_position_axis(axis, fix.position_m[axis] + moved[axis], std_of(axis));
                 self.xy_initialised[axis] = true;
-                outcome = FuseOutcome::Initialised;
-                continue;
+                initialised = true;
             }
+        }
+        if initialised {
+            return FuseOutcome::Initialised;
+        }
+        let g2 = self.params.gate_sigma * self.params.gate_sigma;
+        let consistent = (0..3).filter(|a| observed(*a)).all(|a| {
+            let (ip, iv) = (IP + a, IV + a);
+            let s = self.cov[ip][ip] - 2.0 * age * self.cov[ip][iv]
+                + age * age * self.cov[iv][iv]
+                + std_of(a) * std_of(a);
+            let innov = fix.position_m[a] - past.p[a];
+            innov.is_finite() && innov * innov <= g2 * s
+        });
+        if !consistent {
+            self.counters.fixes_rejected += 1;
+            self.vision_position_rejections = self.vision_position_rejections.saturating_add(1);
+            if self.vision_position_rejections >= self.params.vision_position_reset_after {
+                for axis in (0..3).filter(|a| observed(*a)) {
+                    self.reset_position_axis(axis, fix.position_m[axis] + moved[axis], std_of(axis));
+                }
+                self.vision_position_rejections = 0;
+                self.counters.position_resets += 1;
+            }
+            return if outcome == FuseOutcome::Accepted { FuseOutcome::Rejected } else { outcome };
+        }
+        self.vision_position_rejections = 0;
+        let mut corr = Vec3::ZERO;
+        for axis in (0..3).filter(|a| observed(*a)) {
             let mut h = [0.0; N];
             h[IP + axis] = 1.0;
             h[IV + axis] = -age;
             let before = (self.p, self.v);
-            let innov = meas - (past.p[axis] + corr[axis]);
-            if self.update(&h, innov, std * std, true) {
+            let innov = fix.position_m[axis] - (past.p[axis] + corr[axis]);
+            let std = std_of(axis);
+            // Gated as a whole above; the sequential updates are not gated again.
+            if self.update(&h, innov, std * std, false) {
                 corr += (self.p - before.0) - (self.v - before.1) * age;
-            } else {
-                any_rejected = true;
             }
         }
-        if any_rejected {
-            self.counters.fixes_rejected += 1;
-            if outcome == FuseOutcome::Accepted {
-                outcome = FuseOutcome::Rejected;
-            }
-        } else {
-            self.counters.fixes_accepted += 1;
-        }
+        self.counters.fixes_accepted += 1;
         outcome
+    }
+
+    /// Sets one position axis to `value` with standard deviation `std`, uncorrelated with the rest.
+    fn reset_position_axis(&mut self, axis: usize, value: f32, std: f32) {
+        let mut dx = [0.0; N];
+        dx[IP + axis] = value - self.p[axis];
+        self.inject(&dx);
+        for i in 0..N {
+            self.cov[IP + axis][i] = 0.0;
+            self.cov[i][IP + axis] = 0.0;
+        }
+        self.cov[IP + axis][IP + axis] = std * std;
     }
 
     /// Fuses a body-frame horizontal velocity (optical flow) measured around `m.time_us`.
@@ -376,13 +400,16 @@ impl Estimator {
         let mut ok = true;
         for e in [e1, e2] {
             let r = self.q.to_mat3();
-            let vb = r.tmul_vec(self.v);
-            // d(R^T v)/dv = R^T, d(R^T v)/dtheta = [R^T v]x.
+            // The drag acts on the velocity through the air: the ground velocity less the wind.
+            let vb = r.tmul_vec(self.v - self.w);
+            // d(R^T (v - w))/dv = R^T = -d/dw, d(R^T (v - w))/dtheta = [R^T (v - w)]x.
             let row_v = r.mul_vec(e) * (-k);
             let row_th = Mat3::skew(vb).tmul_vec(e) * (-k);
             let mut h = [0.0; N];
             h[IV..IV + 3].copy_from_slice(&row_v.to_array());
             h[ITH..ITH + 3].copy_from_slice(&row_th.to_array());
+            h[IW] = -row_v.x;
+            h[IW + 1] = -row_v.y;
             // The bias is considered but not corrected here: the model's errors (wind, an inexact k) would
             // leak into it. A learned axis has absorbed the bias across it already.
             let bias = if learn { Vec3::ZERO } else { self.ba };

@@ -1,8 +1,8 @@
 //! State estimation: an error-state Kalman filter (ESKF) on IMU kinematics.
 //!
 //! Nominal state: position and velocity (world), attitude (quaternion, world from body), gyro and
-//! accelerometer biases. Error state (15): `[dp, dv, dtheta, dbg, dba]` with the attitude error in the body
-//! frame (`q_true = q * exp(dtheta)`, as in Sola, "Quaternion kinematics for the error-state Kalman filter",
+//! accelerometer biases, horizontal wind. Error state (17): `[dp, dv, dtheta, dbg, dba, dw]` with the attitude
+//! error in the body frame (`q_true = q * exp(dtheta)`, as in Sola, "Quaternion kinematics for the error-state Kalman filter",
 //! 2017). The IMU drives the prediction; corrections come from:
 //!
 //! - **vision fixes** (position and yaw of the forward camera's pose), which are *delayed*: each carries its
@@ -38,17 +38,24 @@ use history::{Corrections, Snapshot};
 /// The longest step of the nominal state's integration (s): longer intervals are integrated in sub-steps.
 pub const MAX_PREDICT_STEP_S: f32 = 0.02;
 
+/// A sample standing out from both neighbours by more than this on an accelerometer axis is a spike (m/s^2).
+pub const SPIKE_ACCEL_M_S2: f32 = 5.0;
+/// A sample standing out from both neighbours by more than this on a gyro axis is a spike (rad/s).
+pub const SPIKE_GYRO_RAD_S: f32 = 0.5;
+
 /// Length of the state history kept for delayed measurements (s).
 pub const HISTORY_S: f32 = HISTORY_LEN as f32 * SNAPSHOT_EVERY_US as f32 * 1e-6;
 const HISTORY_LEN: usize = 128;
 /// The history keeps one state per 2 ms at most, whatever the control rate.
 const SNAPSHOT_EVERY_US: u64 = 2000;
-const N: usize = 15;
+const N: usize = 17;
 const IP: usize = 0;
 const IV: usize = 3;
 const ITH: usize = 6;
 const IBG: usize = 9;
 const IBA: usize = 12;
+/// The horizontal wind (world x, y): the air's velocity the rotor-drag model sees the vehicle move against.
+const IW: usize = 15;
 
 /// One IMU sample (body frame).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -133,6 +140,10 @@ pub struct StateEstimate {
     pub gyro_bias_rad_s: Vec3,
     /// Accelerometer bias (m/s^2).
     pub accel_bias_m_s2: Vec3,
+    /// The wind (the air's velocity), world frame, horizontal (m/s): from the rotor-drag model in flight.
+    pub wind_m_s: Vec3,
+    /// Its standard deviation, world x and y (m/s).
+    pub wind_std_m_s: [f32; 2],
     /// Position standard deviation (m).
     pub position_std_m: Vec3,
     /// Velocity standard deviation (m/s).
@@ -179,6 +190,8 @@ pub struct EstimatorCounters {
     pub vision_yaw_rejected: u32,
     /// Headings reset to the vision yaw after consistent refusals.
     pub yaw_resets: u32,
+    /// Positions reset to the vision fix after consistent refusals.
+    pub position_resets: u32,
     /// Blocks of samples at rest (zero velocity, gravity and zero rate fused).
     pub still_blocks: u32,
     /// Blocks in flight whose rotor-drag measurement was fused.
@@ -187,6 +200,8 @@ pub struct EstimatorCounters {
     pub accel_rejected: u32,
     /// Gaps between IMU samples longer than `max_imu_gap_s` (not integrated).
     pub imu_gaps: u32,
+    /// IMU samples replaced as single-sample spikes.
+    pub imu_spikes: u32,
 }
 
 /// The error-state Kalman filter.
@@ -198,6 +213,7 @@ pub struct Estimator {
     q: Quat,
     bg: Vec3,
     ba: Vec3,
+    w: Vec3,
     cov: [[f32; N]; N],
     last_imu_us: Option<u64>,
     last_omega: Vec3,
@@ -219,6 +235,9 @@ pub struct Estimator {
     yaw_from_vision: bool,
     last_vision_yaw_us: Option<u64>,
     vision_yaw_rejections: u8,
+    vision_position_rejections: u8,
+    /// The two samples before the newest, for the spike test.
+    imu_window: [Option<ImuSample>; 2],
     mag_offset: Option<f32>,
 }
 
@@ -247,6 +266,8 @@ impl Estimator {
             params.initial_accel_bias_sigma_m_s2,
             params.initial_accel_bias_sigma_m_s2,
             params.initial_accel_bias_sigma_m_s2,
+            params.initial_wind_sigma_m_s, // wind (m/s)
+            params.initial_wind_sigma_m_s,
         ];
         for (i, s) in diag.iter().enumerate() {
             cov[i][i] = s * s;
@@ -260,6 +281,7 @@ impl Estimator {
             q,
             bg: Vec3::ZERO,
             ba: Vec3::ZERO,
+            w: Vec3::ZERO,
             cov,
             last_imu_us: None,
             last_omega: Vec3::ZERO,
@@ -281,6 +303,8 @@ impl Estimator {
             yaw_from_vision: false,
             last_vision_yaw_us: None,
             vision_yaw_rejections: 0,
+            vision_position_rejections: 0,
+            imu_window: [None; 2],
             mag_offset: None,
         }
     }
@@ -300,6 +324,11 @@ impl Estimator {
         self.counters
     }
 
+    /// Whether the heading comes from vision (the line's frame), not only from the compass.
+    pub fn yaw_from_vision(&self) -> bool {
+        self.yaw_from_vision
+    }
+
     /// Whether the yaw has been set from a measurement.
     pub fn yaw_initialised(&self) -> bool {
         self.yaw_initialised
@@ -312,17 +341,73 @@ impl Estimator {
             && self.q.is_finite()
             && self.bg.is_finite()
             && self.ba.is_finite()
+            && self.w.is_finite()
             && (0..N).all(|i| self.cov[i][i].is_finite() && self.cov[i][i] >= 0.0)
     }
 
-    /// Propagates the nominal state with one IMU sample. Returns `false` (and ignores the sample) when it is
-    /// not finite or not newer than the previous one. The first block of samples aligns roll and pitch.
+    /// Takes one IMU sample. Returns `false` (and ignores the sample) when it is not finite or not newer
+    /// than the previous one.
+    ///
+    /// The samples propagate the state one sample late (1 ms at 1 kHz), so that each can be compared with
+    /// both its neighbours: a single-sample spike (an electrical glitch, a bus error) would otherwise enter
+    /// the attitude whole (20 rad/s in one 1 ms sample turns it by 1.1 deg). A sample that stands out from two
+    /// agreeing neighbours by more than [`SPIKE_ACCEL_M_S2`] or [`SPIKE_GYRO_RAD_S`] on an axis is replaced by
+    /// their mean there, and counted (`imu_spikes`).
     pub fn predict(&mut self, s: &ImuSample) -> bool {
         let g = Vec3::from_array(s.gyro_rad_s);
         let a = Vec3::from_array(s.accel_m_s2);
-        if !g.is_finite() || !a.is_finite() {
+        if !g.is_finite() || !a.is_finite() || self.imu_window[1].is_some_and(|w| s.time_us <= w.time_us) {
             return false;
         }
+        let out = match self.imu_window {
+            [Some(a0), Some(a1)] => {
+                // The middle sample of three is a spike on an axis when it stands out from both neighbours,
+                // on the same side, by more than the threshold while they agree with each other: it is
+                // replaced by their mean. A real signal behind the sensor's anti-alias filter (under 100 Hz)
+                // never does that at 1 kHz, so everything else passes bit for bit.
+                let mut spike = false;
+                let mut clean = |x: f32, y: f32, z: f32, lim: f32| {
+                    let (dy, dz) = (y - x, y - z);
+                    if libm::fabsf(x - z) <= lim
+                        && libm::fabsf(dy) > lim
+                        && libm::fabsf(dz) > lim
+                        && dy * dz > 0.0
+                    {
+                        spike = true;
+                        0.5 * (x + z)
+                    } else {
+                        y
+                    }
+                };
+                let m = ImuSample {
+                    time_us: a1.time_us,
+                    gyro_rad_s: core::array::from_fn(|k| {
+                        clean(a0.gyro_rad_s[k], a1.gyro_rad_s[k], s.gyro_rad_s[k], SPIKE_GYRO_RAD_S)
+                    }),
+                    accel_m_s2: core::array::from_fn(|k| {
+                        clean(a0.accel_m_s2[k], a1.accel_m_s2[k], s.accel_m_s2[k], SPIKE_ACCEL_M_S2)
+                    }),
+                };
+                if spike {
+                    self.counters.imu_spikes += 1;
+                }
+                Some(m)
+            }
+            [_, Some(a1)] => Some(a1),
+            _ => None,
+        };
+        self.imu_window = [self.imu_window[1], Some(*s)];
+        match out {
+            Some(m) => self.integrate(&m),
+            None => true,
+        }
+    }
+
+    /// Propagates the nominal state with one (filtered) IMU sample. The first block of samples aligns roll
+    /// and pitch.
+    fn integrate(&mut self, s: &ImuSample) -> bool {
+        let g = Vec3::from_array(s.gyro_rad_s);
+        let a = Vec3::from_array(s.accel_m_s2);
         let Some(last) = self.last_imu_us else {
             // A first guess from this sample; the first block's mean refines it 50 ms later.
             self.align_tilt(a);
@@ -437,6 +522,20 @@ impl Estimator {
                     self.cov[start + k][start + k] += var * dt;
                 }
             }
+            // The wind walks, its variance capped at the initial one (without drag fusion, on the ground or
+            // with the model off, it is not observed at all): a row and column scaled keep P positive.
+            let cap = pr.initial_wind_sigma_m_s * pr.initial_wind_sigma_m_s;
+            for k in 0..2 {
+                let i = IW + k;
+                self.cov[i][i] += pr.wind_walk_m_s * pr.wind_walk_m_s * dt;
+                if self.cov[i][i] > cap {
+                    let f = libm::sqrtf(cap / self.cov[i][i]);
+                    for j in 0..N {
+                        self.cov[i][j] *= f;
+                        self.cov[j][i] *= f;
+                    }
+                }
+            }
             self.symmetrise();
         }
         self.push_history(now_us);
@@ -541,6 +640,7 @@ impl Estimator {
         self.corr.th += v3(ITH);
         self.bg += v3(IBG);
         self.ba += v3(IBA);
+        self.w += Vec3::new(dx[IW], dx[IW + 1], 0.0);
     }
 
     /// The current estimate.
@@ -564,6 +664,8 @@ impl Estimator {
             rates_rad_s: self.last_omega,
             gyro_bias_rad_s: self.bg,
             accel_bias_m_s2: self.ba,
+            wind_m_s: self.w,
+            wind_std_m_s: [sd(IW), sd(IW + 1)],
             position_std_m: Vec3::new(sd(IP), sd(IP + 1), sd(IP + 2)),
             velocity_std_m_s: Vec3::new(sd(IV), sd(IV + 1), sd(IV + 2)),
             tilt_std_rad: self.tilt_std_rad(),

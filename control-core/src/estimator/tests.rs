@@ -186,15 +186,17 @@ fn gaps_are_integrated_in_sub_steps_and_long_ones_counted() {
     let yaw0 = e.estimate(0).attitude.yaw;
     let g = [0.0, 0.0, rate];
     let a = [0.0, 0.0, GRAVITY];
-    for t in [1000u64, 2000, 62_000, 63_000] {
+    // (The state runs one sample behind the newest, see `predict`: after 64 ms it is at 63 ms.)
+    for t in [1000u64, 2000, 62_000, 63_000, 64_000] {
         e.predict(&ImuSample { time_us: t, gyro_rad_s: g, accel_m_s2: a });
     }
     let turned = e.estimate(63_000).attitude.yaw - yaw0;
     assert!((turned - rate * 0.062).abs() < 1e-4, "turned {turned}");
     assert_eq!(e.counters().imu_gaps, 0);
     // A gap beyond max_imu_gap_s is counted and not integrated.
-    let before = e.estimate(63_000).attitude.yaw;
-    e.predict(&ImuSample { time_us: 63_000 + 1_000_000, gyro_rad_s: g, accel_m_s2: a });
+    e.predict(&ImuSample { time_us: 64_000 + 1_000_000, gyro_rad_s: g, accel_m_s2: a });
+    let before = e.estimate(64_000).attitude.yaw;
+    e.predict(&ImuSample { time_us: 65_000 + 1_000_000, gyro_rad_s: g, accel_m_s2: a });
     assert_eq!(e.counters().imu_gaps, 1);
     assert!((e.estimate(0).attitude.yaw - before).abs() < 1e-6);
     // The covariance grows over the gap.
@@ -259,4 +261,116 @@ fn the_drag_model_corrects_a_tilt_error_in_flight() {
         "gravity pitch {}",
         s.attitude.pitch.to_degrees()
     );
+}
+
+#[test]
+fn a_single_sample_spike_is_removed_and_counted_and_a_real_step_passes() {
+    let run = |spike: Option<(u64, [f32; 3], [f32; 3])>| {
+        let mut e = Estimator::new(EstimatorParams::default(), Vec3::new(1.0, 1.3, 0.06));
+        for k in 0..400u64 {
+            let mut s = level_imu(k * 1000);
+            if let Some((at, g, a)) = spike
+                && k == at
+            {
+                s.gyro_rad_s = g;
+                s.accel_m_s2 = [a[0], a[1], a[2] + GRAVITY];
+            }
+            e.predict(&s);
+        }
+        e
+    };
+    let clean = run(None);
+    // 20 rad/s on roll and 80 m/s^2 forward in one 1 ms sample: unfiltered, 1.1 deg of roll and 8 cm/s.
+    let spiked = run(Some((200, [20.0, 0.0, 0.0], [80.0, 0.0, 0.0])));
+    assert_eq!(spiked.counters().imu_spikes, 1);
+    assert_eq!(clean.counters().imu_spikes, 0);
+    let (c, s) = (clean.estimate(0), spiked.estimate(0));
+    assert!((c.attitude.roll - s.attitude.roll).abs() < 1e-6, "{} {}", c.attitude.roll, s.attitude.roll);
+    assert!((c.velocity_m_s - s.velocity_m_s).norm() < 1e-6);
+    // A real change (a steady rate from sample 200 on) is not a spike: it is integrated from its first sample.
+    let mut e = Estimator::new(EstimatorParams::default(), Vec3::ZERO);
+    let yaw0 = e.estimate(0).attitude.yaw;
+    for k in 0..=300u64 {
+        let mut s = level_imu(k * 1000);
+        if k >= 200 {
+            s.gyro_rad_s = [0.0, 0.0, 2.0];
+        }
+        e.predict(&s);
+    }
+    assert_eq!(e.counters().imu_spikes, 0);
+    // Samples 200..=299 are integrated (the newest waits for its successor): about 0.1 s at 2 rad/s.
+    let turned = e.estimate(0).attitude.yaw - yaw0;
+    assert!((turned - 0.2).abs() < 0.005, "turned {turned}");
+}
+
+fn hover_fix(cap: u64, p: Vec3) -> PositionFix {
+    PositionFix {
+        capture_time_us: cap,
+        position_m: p,
+        position_std_m: Vec3::new(0.005, 0.005, 0.005),
+        x_observed: true,
+        yaw_rad: 0.0,
+        yaw_std_rad: 0.002,
+    }
+}
+
+/// A filter hovering at `p` with fixes, up to 2 s.
+fn hovering_filter(p: Vec3) -> (Estimator, u64) {
+    let mut e = Estimator::new(EstimatorParams::default(), p);
+    let mut t = 0;
+    for k in 1..=2000u64 {
+        t = k * 1000;
+        e.predict(&level_imu(t));
+        if k % 2 == 0 {
+            e.propagate_covariance(t);
+        }
+        if k % 33 == 0 && t > 100_000 {
+            e.fuse_fix(&hover_fix(t - 40_000, p), t);
+        }
+    }
+    (e, t)
+}
+
+#[test]
+fn a_fix_with_one_axis_outside_its_gate_is_refused_whole() {
+    let p = Vec3::new(1.0, 1.3, 0.8);
+    let (mut e, t) = hovering_filter(p);
+    let before = e.estimate(t);
+    let rejected = e.counters().fixes_rejected;
+    // Height 0.5 m off (outside the gate), x 1 cm off (inside): nothing of it is used.
+    let o = e.fuse_fix(&hover_fix(t - 40_000, p + Vec3::new(0.01, 0.0, 0.5)), t);
+    assert_eq!(o, FuseOutcome::Rejected);
+    assert_eq!(e.counters().fixes_rejected, rejected + 1);
+    let after = e.estimate(t);
+    assert_eq!(after.position_m, before.position_m, "no axis of a refused fix is fused");
+}
+
+#[test]
+fn consistent_refusals_reset_the_position_to_vision() {
+    // The estimate drifted 0.4 m in height while vision was out; vision returns and agrees with itself.
+    let p = Vec3::new(1.0, 1.3, 0.8);
+    let (mut e, mut t) = hovering_filter(p);
+    let truth = p + Vec3::new(0.0, 0.0, 0.4);
+    let n = EstimatorParams::default().vision_position_reset_after as u64;
+    for k in 0..n {
+        t += 33_000;
+        e.predict(&level_imu(t));
+        e.propagate_covariance(t);
+        let o = e.fuse_fix(&hover_fix(t - 20_000, truth), t);
+        if k + 1 < n {
+            assert_eq!(o, FuseOutcome::Rejected, "fix {k}");
+            assert!((e.estimate(t).position_m.z - 0.8).abs() < 0.05);
+        }
+    }
+    assert_eq!(e.counters().position_resets, 1);
+    assert!(
+        (e.estimate(t).position_m.z - 1.2).abs() < 0.01,
+        "reset to vision: {}",
+        e.estimate(t).position_m.z
+    );
+    // And the next fix is fused.
+    t += 33_000;
+    e.predict(&level_imu(t));
+    e.propagate_covariance(t);
+    assert_eq!(e.fuse_fix(&hover_fix(t - 20_000, truth), t), FuseOutcome::Accepted);
 }

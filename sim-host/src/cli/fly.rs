@@ -78,14 +78,26 @@ pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
     let mut scenario = Scenario::load(&a.scenario)?;
     let mut seed = a.seed;
     if let (Some(vary), Some(k)) = (&a.vary, a.run) {
-        let vary = sim_host::sweep::vary::Vary::load(vary)?;
-        let draw = sim_host::sweep::run_scenario(&scenario, &vary, a.seed, k)?;
+        let drawn = sim_host::sweep::vary::Vary::load(vary)?;
+        let draw = sim_host::sweep::run_scenario(&scenario, &drawn, a.seed, k)?;
         seed = sim_host::sweep::run_seed(a.seed, k);
         eprintln!("run {k} of sweep seed {}: seed {seed}", a.seed);
         for (name, value) in &draw.values {
             eprintln!("  {name} = {value}");
         }
         scenario = draw.scenario;
+        // The drawn scenario beside the outputs, to fly again or edit.
+        std::fs::create_dir_all(&a.out)?;
+        let path = a.out.join("scenario.toml");
+        let text = format!(
+            "# Run {k} of `sim-host sweep --scenario {} --vary {} --seed {}` (fly it with --seed {seed}).\n{}",
+            a.scenario,
+            vary.display(),
+            a.seed,
+            toml::to_string(&scenario)?
+        );
+        sim_host::files::write_atomic(&path, text.as_bytes())?;
+        eprintln!("  the drawn scenario: {}", path.display());
     }
     if let Some(d) = a.duration
         && !(d > 0.0 && d.is_finite())
