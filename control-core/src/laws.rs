@@ -133,6 +133,8 @@ pub struct Controller {
     drag_per_s: f32,
     altitude_integral: f32,
     trim: [f32; 2],
+    /// Integrals of the attitude errors (roll, pitch, yaw), in angular acceleration (rad/s^2).
+    attitude_integral: [f32; 3],
 }
 
 impl Controller {
@@ -144,13 +146,21 @@ impl Controller {
     /// A controller whose feed-forward also overcomes the rotors' drag at the reference velocity:
     /// `drag_per_s` is the drag model's coefficient (`estimator.drag_coeff_per_s`, 1/s).
     pub fn with_drag(gains: ControlGains, vehicle: VehicleParams, drag_per_s: f32) -> Self {
-        Self { gains, vehicle, drag_per_s, altitude_integral: 0.0, trim: [0.0; 2] }
+        Self {
+            gains,
+            vehicle,
+            drag_per_s,
+            altitude_integral: 0.0,
+            trim: [0.0; 2],
+            attitude_integral: [0.0; 3],
+        }
     }
 
     /// Clears the integrals (on the ground).
     pub fn reset(&mut self) {
         self.altitude_integral = 0.0;
         self.trim = [0.0; 2];
+        self.attitude_integral = [0.0; 3];
     }
 
     /// One step of the laws. `integrate` enables the integrals (airborne, tracking or hovering);
@@ -214,7 +224,26 @@ impl Controller {
 
         // Yaw (eq. 31).
         let y = &g.yaw;
-        let u_yaw = sat(-y.a_psi1 * w.z - y.a_psi2 * wrap_pi(yaw - sp.yaw_rad), y.max_accel_rad_s2);
+        let yaw_err = wrap_pi(yaw - sp.yaw_rad);
+        // The attitude integrals (not in the paper): the attitude error against the angle the position terms
+        // ask for, and the yaw error, integrated into the angular acceleration, bounded.
+        if integrate && dt > 0.0 {
+            let mut step = |i: usize, gain: f32, err: f32, limit: f32| {
+                self.attitude_integral[i] =
+                    clamp_finite(self.attitude_integral[i] - gain * err * dt, -limit, limit);
+            };
+            step(0, g.roll.attitude_integral_gain, roll - cmd_roll, g.roll.attitude_integral_limit_rad_s2);
+            step(
+                1,
+                g.pitch.attitude_integral_gain,
+                pitch - cmd_pitch,
+                g.pitch.attitude_integral_limit_rad_s2,
+            );
+            step(2, y.integral_gain, yaw_err, y.integral_limit_rad_s2);
+        }
+        let u_roll = u_roll + self.attitude_integral[0];
+        let u_pitch = u_pitch + self.attitude_integral[1];
+        let u_yaw = sat(-y.a_psi1 * w.z - y.a_psi2 * yaw_err + self.attitude_integral[2], y.max_accel_rad_s2);
 
         // Altitude (eq. 30) with the bounded integral.
         let a = &g.altitude;

@@ -60,6 +60,13 @@ pub const TAKEOFF_CLOSE_M: f32 = 0.05;
 /// The yaw reference turns to the mission's yaw at most this fast once vision gives the heading (rad/s).
 pub const YAW_SETPOINT_RATE_RAD_S: f32 = 0.5;
 
+/// Time constant of the learned hover thrust (s).
+pub const HOVER_THRUST_FILTER_S: f32 = 2.0;
+
+/// Landing: when the reference is this far below the pad, touchdown is overdue and the thrust is wound down
+/// while the floor carries the vehicle (m).
+pub const TOUCHDOWN_EXPECTED_M: f32 = 0.2;
+
 /// A take-off that timed out this high above the pad hovers; lower, it lands (m).
 pub const TAKEOFF_AIRBORNE_M: f32 = 0.1;
 
@@ -291,6 +298,10 @@ pub struct ControlCore {
     resume_climb: bool,
     /// The vision-yaw state the yaw reference was last seeded for: (yaw from vision, yaw resets).
     yaw_frame: (bool, u32),
+    /// The vertical thrust that hovers (N), low-passed while vision holds the height (see `step`).
+    hover_thrust_n: Option<f32>,
+    /// The estimator's position resets already acted on.
+    position_resets_seen: u32,
     /// The sweep a vision hold interrupted, resumed when vision returns.
     paused_sweep: Option<Sweep>,
     limiter: laws::SetpointLimiter,
@@ -338,6 +349,8 @@ impl ControlCore {
             accel_lp: None,
             resume_climb: false,
             paused_sweep: None,
+            position_resets_seen: 0,
+            hover_thrust_n: None,
             yaw_frame: (false, 0),
             limiter: laws::SetpointLimiter::new(),
         }
@@ -540,12 +553,31 @@ impl ControlCore {
         if let Some(f) = inp.flow {
             self.estimator.fuse_body_velocity(&f, now);
         }
+        // Nothing sinks through the floor (the pad's height is where the centre of mass rests on it).
+        self.estimator.constrain_above_floor(traj.ground_height_m);
         if inp.link_message {
             self.last_link_us = Some(now);
         }
         let link_ok =
             self.last_link_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.link_land_after_s);
         let est = self.estimator.estimate(now);
+        // A position reset (vision back after a long dead-reckoning) moves the estimate at once: the references
+        // start again from the new estimate, at their bounded rates (a landing descends from the new height).
+        let resets = self.estimator.counters().position_resets;
+        if resets != self.position_resets_seen {
+            self.position_resets_seen = resets;
+            self.limiter.restart(est.position_m);
+            if self.mode == FlightMode::Landing {
+                let floor = traj.ground_height_m - LANDING_DEPTH_BELOW_FLOOR_M;
+                self.start_vertical(est.position_m.z, floor, traj.landing_speed_m_s, now);
+                self.contact_since_us = None;
+            } else if self.mode == FlightMode::TakeOff && self.vertical.is_some() {
+                self.start_vertical(est.position_m.z, traj.z_d_m, traj.takeoff_speed_m_s, now);
+            }
+            if matches!(self.mode, FlightMode::VisionHold) {
+                self.hold = est.position_m;
+            }
+        }
 
         // Faults: motors off.
         let tilt = libm::acosf(geometry::clamp_finite(
@@ -736,20 +768,46 @@ impl ControlCore {
             matches!(self.mode, FlightMode::Hover | FlightMode::Tracking | FlightMode::VisionHold)
                 || (self.mode == FlightMode::TakeOff && off_pad);
         let (mut demand, law) = self.controller.update(&est, &sp, dt, integrate, self.motors);
-        // Ground contact while landing: commanded down, not descending, and the floor carrying the vehicle
-        // (the specific force that of gravity). The thrust is then wound down to idle in
-        // `ground_contact_ramp_s`, so that the land detector sees it; a descent again cancels it.
+        // The vertical thrust that holds the vehicle, learned while vision holds the height (the altitude
+        // integral has found the real mass and thrust by then): without vision the height is dead-reckoned and
+        // may drift either way by tens of centimetres in seconds, so a landing without vision may never ask for
+        // more than this (it cannot climb away on a drifting estimate; it descends, and the land detector
+        // ends it on the floor).
+        let cos_tilt = geometry::clamp_finite(
+            geometry::trig::cos(est.attitude.roll) * geometry::trig::cos(est.attitude.pitch),
+            0.5,
+            1.0,
+        );
+        let vision_fresh =
+            self.last_fix_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.vision_hold_after_s);
+        if vision_fresh && matches!(self.mode, FlightMode::Hover | FlightMode::Tracking) {
+            let a = (dt / HOVER_THRUST_FILTER_S).clamp(0.0, 1.0);
+            let vertical = demand.thrust_n * cos_tilt;
+            self.hover_thrust_n = Some(self.hover_thrust_n.map_or(vertical, |h| h + (vertical - h) * a));
+        }
+        if self.mode == FlightMode::Landing
+            && !vision_fresh
+            && let Some(h) = self.hover_thrust_n
+        {
+            demand.thrust_n = demand.thrust_n.min(h / cos_tilt);
+        }
+        // Ground contact while landing. The thrust is wound down to idle in `ground_contact_ramp_s`, so that the
+        // land detector sees it, once the floor may carry the vehicle: the estimate no longer descends, or the
+        // specific force exceeds what the thrust explains, or the reference has gone `TOUCHDOWN_EXPECTED_M`
+        // below the pad (touchdown is overdue: the height estimate, without vision near the floor, may have
+        // drifted). The accelerometer decides, not the estimate: the wind-down goes on while the specific force
+        // stays that of gravity (the floor carries what the rotors no longer do) and stops as soon as it falls
+        // below (the vehicle was still in the air and sinks: the law takes over again).
         if self.mode == FlightMode::Landing {
             let fs = &self.params.failsafe;
             let supported = step_accel.is_some_and(|f| (f - GRAVITY).abs() < fs.land_accel_tolerance_m_s2);
-            // Not descending by the estimate, or the specific force beyond what the thrust explains (the
-            // floor carries the rest; this one needs no estimate at all).
             let weight_per_kg = self.last_thrust_n / self.params.vehicle.mass_kg;
             let carried = step_accel.is_some_and(|f| f - weight_per_kg > GROUND_CONTACT_EXCESS * GRAVITY);
-            let stalled = (est.velocity_m_s.z > -GROUND_CONTACT_SPEED_M_S || carried) && supported;
-            if est.velocity_m_s.z < -3.0 * GROUND_CONTACT_SPEED_M_S {
+            let overdue = sp.position_m.z < traj.ground_height_m - TOUCHDOWN_EXPECTED_M;
+            let contact = est.velocity_m_s.z > -GROUND_CONTACT_SPEED_M_S || carried || overdue;
+            if !supported {
                 self.contact_since_us = None;
-            } else if stalled {
+            } else if contact || self.contact_since_us.is_some() {
                 let since = *self.contact_since_us.get_or_insert(now);
                 let t = now.saturating_sub(since) as f32 * 1e-6;
                 let cap =

@@ -173,11 +173,24 @@ pub struct YawGains {
     pub a_psi2: f32,
     /// Bound of the commanded yaw angular acceleration (rad/s^2).
     pub max_accel_rad_s2: f32,
+    /// Gain of the integral of the yaw error (1/s^3): a steady yaw torque (a weaker rotor's neighbours spin
+    /// faster, and their drag torque is not balanced) is taken without a steady yaw error. 0 gives the paper's
+    /// law.
+    pub integral_gain: f32,
+    /// Bound of that integral (rad/s^2).
+    pub integral_limit_rad_s2: f32,
 }
 
 impl Default for YawGains {
     fn default() -> Self {
-        Self { a_psi1: 6.0, a_psi2: 9.0, max_accel_rad_s2: 10.0 }
+        // s^3 + 6 s^2 + 9 s + 4: the poles at -4 and a double -1.
+        Self {
+            a_psi1: 6.0,
+            a_psi2: 9.0,
+            max_accel_rad_s2: 10.0,
+            integral_gain: 4.0,
+            integral_limit_rad_s2: 5.0,
+        }
     }
 }
 
@@ -203,6 +216,13 @@ pub struct SaturatedAxisGains {
     pub trim_gain: f32,
     /// Bound of that trim (rad).
     pub trim_limit_rad: f32,
+    /// Gain of the integral of the attitude error (the angle less the one the position terms ask for) added
+    /// to the angular acceleration (1/s^3): it takes a steady torque (a weaker rotor, a centre of mass off the
+    /// axis) that the angle term would otherwise hold with a steady attitude error, as the integrators of
+    /// PX4's and ArduPilot's rate controllers do. 0 gives the paper's law.
+    pub attitude_integral_gain: f32,
+    /// Bound of that integral (rad/s^2).
+    pub attitude_integral_limit_rad_s2: f32,
 }
 
 impl Default for SaturatedAxisGains {
@@ -234,6 +254,11 @@ impl SaturatedAxisGains {
             b,
             trim_gain,
             trim_limit_rad,
+            // With the attitude pair above, s^3 + 16 s^2 + 100 s + 100: the integral's pole at 1.2 rad/s, the
+            // pair kept near 9 rad/s.
+            attitude_integral_gain: 100.0,
+            // A fifth of one rotor's thrust lost at hover asks about 11 rad/s^2 of this airframe.
+            attitude_integral_limit_rad_s2: 20.0,
         }
     }
 
@@ -250,8 +275,8 @@ impl SaturatedAxisGains {
     /// The checks of one axis: positive gains, Routh-Hurwitz on the linear part, angle terms dominating the
     /// position terms, saturation levels within the vehicle's authority, tilt bound within `max_tilt_rad`.
     pub fn validate(&self, authority_rad_s2: f32, max_tilt_rad: f32, axis: Axis) -> Result<(), ParamError> {
-        let f = |which: &'static [&'static str; 6], i: usize| which[i];
-        let names: &'static [&'static str; 6] = match axis {
+        let f = |which: &'static [&'static str; 8], i: usize| which[i];
+        let names: &'static [&'static str; 8] = match axis {
             Axis::Roll => &[
                 "gains.roll.k",
                 "gains.roll.b",
@@ -259,6 +284,8 @@ impl SaturatedAxisGains {
                 "gains.roll.b",
                 "gains.roll.trim_gain",
                 "gains.roll.trim_limit_rad",
+                "gains.roll.attitude_integral_gain",
+                "gains.roll.attitude_integral_limit_rad_s2",
             ],
             Axis::Pitch => &[
                 "gains.pitch.k",
@@ -267,6 +294,8 @@ impl SaturatedAxisGains {
                 "gains.pitch.b",
                 "gains.pitch.trim_gain",
                 "gains.pitch.trim_limit_rad",
+                "gains.pitch.attitude_integral_gain",
+                "gains.pitch.attitude_integral_limit_rad_s2",
             ],
         };
         for &k in &self.k {
@@ -317,6 +346,18 @@ impl SaturatedAxisGains {
             self.trim_limit_rad <= 0.2 * max_tilt_rad,
             f(names, 5),
             "must stay below a fifth of max_tilt_rad",
+        )?;
+        // The attitude integral on the attitude pair s^2 + k2 s + k1: s^3 + k2 s^2 + k1 s + k_i is stable for
+        // k_i < k2 k1; kept a tenth of that.
+        check(
+            self.attitude_integral_gain >= 0.0 && self.attitude_integral_gain <= 0.1 * self.k[1] * self.k[0],
+            f(names, 6),
+            "must lie in [0, k2 k1 / 10] (the attitude pair with the integral stays well damped)",
+        )?;
+        check(
+            self.attitude_integral_limit_rad_s2 >= 0.0 && self.attitude_integral_limit_rad_s2 <= self.b[0],
+            f(names, 7),
+            "must lie in [0, b1]",
         )?;
         // The trim must be much slower than the position loop it sits on: k_i << k3 / k1 * (slowest pole).
         check(
@@ -397,6 +438,16 @@ impl ControlGains {
         positive(y.a_psi1, "gains.yaw.a_psi1")?;
         positive(y.a_psi2, "gains.yaw.a_psi2")?;
         positive(y.max_accel_rad_s2, "gains.yaw.max_accel_rad_s2")?;
+        check(
+            y.integral_gain >= 0.0 && y.integral_gain < y.a_psi1 * y.a_psi2,
+            "gains.yaw.integral_gain",
+            "must lie in [0, a_psi1 a_psi2) (Routh-Hurwitz of s^3 + a_psi1 s^2 + a_psi2 s + k_i)",
+        )?;
+        check(
+            y.integral_limit_rad_s2 >= 0.0 && y.integral_limit_rad_s2 <= y.max_accel_rad_s2,
+            "gains.yaw.integral_limit_rad_s2",
+            "must lie in [0, max_accel_rad_s2]",
+        )?;
         check(
             self.max_tilt_rad > 0.05 && self.max_tilt_rad < 1.0,
             "gains.max_tilt_rad",

@@ -497,10 +497,11 @@ mod tests {
         assert_eq!(s.pending_solves(), 0);
     }
 
-    /// The line as seen from 1.2 m in front of the wall, level, at the line's height.
+    /// The line as seen from 1.2 m in front of the wall, level, at the line's height (each frame from a
+    /// tenth of a millimetre further along, as no two real frames are the same).
     fn frame_seen(capture_time_us: u64, frame_seq: u32) -> VisionMeasurement {
         let v = VisionConfig::default();
-        let c = v.target.center() - Vec3::new(0.0, -1.2, 0.0);
+        let c = v.target.center() - Vec3::new(-1e-4 * frame_seq as f32, -1.2, 0.0);
         let r_wc = geometry::frames::Attitude::new(0.0, 0.0, 0.0)
             .world_from_body()
             .mul_mat(&v.mount.body_from_camera);
@@ -559,5 +560,52 @@ mod tests {
         t += 2000;
         let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[], landed: None });
         assert_eq!(out.vision.solved, 3);
+    }
+
+    #[test]
+    fn a_repeated_frame_is_refused_as_frozen() {
+        let mut s = FlightStack::new(FlightConfig::paper()).unwrap();
+        let mut t = 0;
+        for _ in 0..100 {
+            t += 2000;
+            s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[], landed: None });
+        }
+        let m = frame_seen(t - 30_000, 1);
+        t += 2000;
+        s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            uplink: &[Uplink::Vision(m)],
+            landed: None,
+        });
+        assert_eq!(s.pending_solves(), 1);
+        s.solve_pending();
+        // The same observation again, with a new time and number: a frozen camera.
+        let mut again = m;
+        again.capture_time_us += 33_000;
+        again.frame_seq += 1;
+        t += 2000;
+        let out = s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            uplink: &[Uplink::Vision(again)],
+            landed: None,
+        });
+        assert_eq!(out.frame, Some(FrameOutcome::Frozen));
+        assert_eq!((out.vision.frozen, out.vision.frames), (1, 2));
+        assert_eq!(s.pending_solves(), 0, "not queued for the solver");
+        // A new frame is taken again.
+        let fresh = frame_seen(t - 20_000, 3);
+        t += 2000;
+        s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            uplink: &[Uplink::Vision(fresh)],
+            landed: None,
+        });
+        assert_eq!(s.pending_solves(), 1);
     }
 }

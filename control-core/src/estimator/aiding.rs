@@ -133,6 +133,7 @@ impl Estimator {
             }
         }
         if initialised {
+            self.counters.fixes_accepted += 1;
             return FuseOutcome::Initialised;
         }
         let g2 = self.params.gate_sigma * self.params.gate_sigma;
@@ -172,6 +173,29 @@ impl Estimator {
         }
         self.counters.fixes_accepted += 1;
         outcome
+    }
+
+    /// The floor is a hard limit: a height estimate below `floor_z` (the centre of mass's height on the pad)
+    /// is projected back onto it, and a descent through it stopped (pseudo-measurements, as for inequality
+    /// constraints in Simon and Chia, "Kalman filtering with state equality constraints", IEEE TAES 38(1),
+    /// 2002). Without vision near the floor the height is dead-reckoned and may otherwise sink through it.
+    /// Returns whether the constraint acted.
+    pub fn constrain_above_floor(&mut self, floor_z: f32) -> bool {
+        if !(self.p.z < floor_z) {
+            return false;
+        }
+        let s = self.params.ground_height_sigma_m;
+        let mut h = [0.0; N];
+        h[IP + 2] = 1.0;
+        self.update(&h, floor_z - self.p.z, s * s, false);
+        if self.v.z < 0.0 {
+            let mut h = [0.0; N];
+            h[IV + 2] = 1.0;
+            let sv = self.params.still_velocity_sigma_m_s;
+            self.update(&h, -self.v.z, sv * sv, false);
+        }
+        self.counters.floor_constraints += 1;
+        true
     }
 
     /// Sets one position axis to `value` with standard deviation `std`, uncorrelated with the rest.

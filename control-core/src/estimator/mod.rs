@@ -202,6 +202,8 @@ pub struct EstimatorCounters {
     pub imu_gaps: u32,
     /// IMU samples replaced as single-sample spikes.
     pub imu_spikes: u32,
+    /// Steps in which the height estimate was held at the floor (it had sunk below).
+    pub floor_constraints: u32,
 }
 
 /// The error-state Kalman filter.
