@@ -195,6 +195,10 @@ pub struct RunStats {
     pub link_dropped: u64,
     /// The estimator's counters at the end (rejections by source).
     pub estimator: control_core::estimator::EstimatorCounters,
+    /// The estimator's wind at the end (world x, y; m/s).
+    pub wind_estimate_m_s: Option<[f32; 2]>,
+    /// The flight code's last rotor-speed commands (rad/s).
+    pub last_motor_cmd: [f32; 4],
     /// Largest tilt error of the estimate while tracking (deg).
     pub max_tilt_error_deg: f64,
     /// RMS tilt error of the estimate while tracking (deg).
@@ -327,6 +331,16 @@ impl Sil {
     /// (`FlightConfig::paper()`): a scenario whose flight code configuration differs is refused.
     pub fn with_fc(scenario: &Scenario, seed: u64, mode: CameraMode, fc: &FcChoice) -> Result<Self> {
         scenario.validate()?;
+        if mode == CameraMode::Analytic {
+            let fields = scenario.analytic_unmodelled();
+            if !fields.is_empty() {
+                anyhow::bail!(
+                    "the analytic camera cannot honour {} (fly it with --camera rendered):\n  {}",
+                    if fields.len() == 1 { "this field" } else { "these fields" },
+                    fields.join("\n  ")
+                );
+            }
+        }
         let m = &scenario.model;
         let mm = &scenario.mismatch;
         let mut params = ModelParams::from_vehicle(
@@ -857,6 +871,9 @@ impl Sil {
             self.stats.failsafes.push((t, format!("{f:?}")));
         }
         self.stats.estimator = out.estimator;
+        self.stats.last_motor_cmd = out.control.motors_rad_s;
+        let w = out.control.estimate.wind_m_s;
+        self.stats.wind_estimate_m_s = Some([w.x, w.y]);
         self.last_failsafe = st.failsafe;
         self.stats.frames_solved = out.vision.solved;
         self.stats.frames_no_target = out.vision.no_target;

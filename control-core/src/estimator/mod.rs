@@ -43,6 +43,9 @@ pub const SPIKE_ACCEL_M_S2: f32 = 5.0;
 /// A sample standing out from both neighbours by more than this on a gyro axis is a spike (rad/s).
 pub const SPIKE_GYRO_RAD_S: f32 = 0.5;
 
+/// A repeated gyro reading counts as clipped above this rate (rad/s).
+pub const CLIP_MIN_RATE_RAD_S: f32 = 0.2;
+
 /// Length of the state history kept for delayed measurements (s).
 pub const HISTORY_S: f32 = HISTORY_LEN as f32 * SNAPSHOT_EVERY_US as f32 * 1e-6;
 const HISTORY_LEN: usize = 128;
@@ -202,6 +205,9 @@ pub struct EstimatorCounters {
     pub imu_gaps: u32,
     /// IMU samples replaced as single-sample spikes.
     pub imu_spikes: u32,
+    /// Gyro samples that repeat the sample before exactly on an axis at a rate above [`CLIP_MIN_RATE_RAD_S`]:
+    /// a sensor held at its range's end (noise never repeats to the last bit).
+    pub gyro_clipped: u32,
     /// Steps in which the height estimate was held at the floor (it had sunk below).
     pub floor_constraints: u32,
 }
@@ -398,6 +404,13 @@ impl Estimator {
             [_, Some(a1)] => Some(a1),
             _ => None,
         };
+        if let Some(prev) = self.imu_window[1]
+            && (0..3).any(|k| {
+                s.gyro_rad_s[k] == prev.gyro_rad_s[k] && libm::fabsf(s.gyro_rad_s[k]) > CLIP_MIN_RATE_RAD_S
+            })
+        {
+            self.counters.gyro_clipped += 1;
+        }
         self.imu_window = [self.imu_window[1], Some(*s)];
         match out {
             Some(m) => self.integrate(&m),

@@ -105,6 +105,12 @@ pub(crate) fn replay(a: &ReplayArgs) -> Result<ExitCode> {
     for d in &s.damage {
         eprintln!("damaged record {d}");
     }
+    if s.reports_without_step > 0 {
+        eprintln!(
+            "{} logged reports lost their step to the damage (not compared; the replay missed those steps)",
+            s.reports_without_step
+        );
+    }
     if let Some(r) = &s.reference {
         print_reference(r);
     }

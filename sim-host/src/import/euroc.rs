@@ -268,6 +268,7 @@ impl ExtraRecords for Frames {
 pub fn import_euroc(opts: &EurocOptions, out: &Path, progress: impl FnMut(f64)) -> Result<ImportSummary> {
     let root = dataset_root(&opts.dir)?;
     let mut scenario = opts.scenario.clone();
+    super::recorded_imu_tuning(&mut scenario);
     let cam_dir = root.join("cam0");
     let yaml_path = cam_dir.join("sensor.yaml");
     if let Ok(yaml) = std::fs::read_to_string(&yaml_path) {

@@ -278,6 +278,7 @@ pub fn import_ulog(opts: &UlogOptions, out: &Path, progress: impl FnMut(f64)) ->
         .collect();
     data.landed = lands.clone();
     let mut scenario = opts.scenario.clone();
+    super::recorded_imu_tuning(&mut scenario);
     let decl = raw.declination_deg.unwrap_or(0.0).to_radians();
     // The horizontal field points to magnetic north: north (ENU y) turned east by the declination.
     scenario.estimator.mag_field_world = [decl.sin() as f32, decl.cos() as f32, -0.5];

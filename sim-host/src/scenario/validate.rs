@@ -306,3 +306,63 @@ impl Scenario {
         Ok(())
     }
 }
+
+impl Scenario {
+    /// The fields the `analytic` camera mode cannot honour, set away from the built-in scenario's values: the
+    /// analytic forward camera projects the line's edges with `forward_camera.analytic_noise_px` of edge noise
+    /// (scaled by the light), the analytic flow tracks an ideal floor grid; neither renders textures, shapes,
+    /// blur, gradients or sensor noise. `Sil::new` refuses such a scenario in that mode, naming each field.
+    pub fn analytic_unmodelled(&self) -> Vec<String> {
+        let p = Scenario::paper();
+        let mut out = Vec::new();
+        let mut differs = |name: &str, same: bool, why: &str| {
+            if !same {
+                out.push(format!("{name}: {why}"));
+            }
+        };
+        let (sc, ps) = (&self.scene, &p.scene);
+        differs("scene.shapes", sc.shapes.is_empty(), "the analytic camera projects the line alone");
+        differs(
+            "scene.wall_texture_contrast",
+            sc.wall_texture_contrast == ps.wall_texture_contrast,
+            "no texture is rendered",
+        );
+        differs(
+            "scene.floor_texture_contrast",
+            sc.floor_texture_contrast == ps.floor_texture_contrast,
+            "the analytic flow tracks an ideal floor",
+        );
+        differs(
+            "scene.floor_texture",
+            sc.floor_texture == ps.floor_texture,
+            "the analytic flow tracks an ideal floor",
+        );
+        differs(
+            "scene.light_gradient_per_m",
+            sc.light_gradient_per_m == ps.light_gradient_per_m,
+            "only a uniform light gain is modelled",
+        );
+        let (fc, pf) = (&self.forward_camera, &p.forward_camera);
+        differs("forward_camera.blur_sigma_px", fc.blur_sigma_px == pf.blur_sigma_px, "no image is rendered");
+        differs(
+            "forward_camera.noise_sigma",
+            fc.noise_sigma == pf.noise_sigma,
+            "set forward_camera.analytic_noise_px instead",
+        );
+        let (dc, pd) = (&self.down_camera, &p.down_camera);
+        differs(
+            "down_camera.noise_sigma",
+            dc.noise_sigma == pd.noise_sigma,
+            "the analytic flow's tracking noise is fixed",
+        );
+        differs("down_camera.blur_sigma_px", dc.blur_sigma_px == pd.blur_sigma_px, "no image is rendered");
+        differs("down_camera.vignetting", dc.vignetting == pd.vignetting, "no image is rendered");
+        differs(
+            "down_camera.exposure_time_s",
+            dc.exposure_time_s == pd.exposure_time_s,
+            "no motion blur is modelled",
+        );
+        differs("down_camera.exposure", dc.exposure == pd.exposure, "no image is rendered");
+        out
+    }
+}
