@@ -60,6 +60,14 @@ pub const TAKEOFF_CLOSE_M: f32 = 0.05;
 /// The yaw reference turns to the mission's yaw at most this fast once vision gives the heading (rad/s).
 pub const YAW_SETPOINT_RATE_RAD_S: f32 = 0.5;
 
+/// Landing: the specific force away from gravity for this long means the vehicle is not on the floor (a
+/// bounce is shorter) (s).
+pub const GROUND_CONTACT_LOST_S: f32 = 0.15;
+
+/// A landing without vision asks for at most this multiple of the learned hover thrust: enough to brake the
+/// descent, not to climb away on a drifting height estimate.
+pub const BLIND_LANDING_THRUST_MARGIN: f32 = 1.05;
+
 /// Time constant of the learned hover thrust (s).
 pub const HOVER_THRUST_FILTER_S: f32 = 2.0;
 
@@ -298,6 +306,8 @@ pub struct ControlCore {
     resume_climb: bool,
     /// The vision-yaw state the yaw reference was last seeded for: (yaw from vision, yaw resets).
     yaw_frame: (bool, u32),
+    /// Since when the specific force has not been that of a vehicle the floor carries (landing).
+    unsupported_since_us: Option<u64>,
     /// The vertical thrust that hovers (N), low-passed while vision holds the height (see `step`).
     hover_thrust_n: Option<f32>,
     /// The estimator's position resets already acted on.
@@ -351,6 +361,7 @@ impl ControlCore {
             paused_sweep: None,
             position_resets_seen: 0,
             hover_thrust_n: None,
+            unsupported_since_us: None,
             yaw_frame: (false, 0),
             limiter: laws::SetpointLimiter::new(),
         }
@@ -554,7 +565,7 @@ impl ControlCore {
             self.estimator.fuse_body_velocity(&f, now);
         }
         // Nothing sinks through the floor (the pad's height is where the centre of mass rests on it).
-        self.estimator.constrain_above_floor(traj.ground_height_m);
+        let at_floor = self.estimator.constrain_above_floor(traj.ground_height_m);
         if inp.link_message {
             self.last_link_us = Some(now);
         }
@@ -675,6 +686,10 @@ impl ControlCore {
             self.yaw_frame = frame;
         }
 
+        // Vision holds the position (a fix accepted within `vision_hold_after_s`).
+        let vision_fresh =
+            self.last_fix_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.vision_hold_after_s);
+
         // Mission progress and the reference.
         let mut sp = Setpoint { position_m: self.hold, yaw_rad: self.yaw_d, ..Setpoint::default() };
         match self.mode {
@@ -778,8 +793,6 @@ impl ControlCore {
             0.5,
             1.0,
         );
-        let vision_fresh =
-            self.last_fix_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.vision_hold_after_s);
         if vision_fresh && matches!(self.mode, FlightMode::Hover | FlightMode::Tracking) {
             let a = (dt / HOVER_THRUST_FILTER_S).clamp(0.0, 1.0);
             let vertical = demand.thrust_n * cos_tilt;
@@ -789,7 +802,7 @@ impl ControlCore {
             && !vision_fresh
             && let Some(h) = self.hover_thrust_n
         {
-            demand.thrust_n = demand.thrust_n.min(h / cos_tilt);
+            demand.thrust_n = demand.thrust_n.min(BLIND_LANDING_THRUST_MARGIN * h / cos_tilt);
         }
         // Ground contact while landing. The thrust is wound down to idle in `ground_contact_ramp_s`, so that the
         // land detector sees it, once the floor may carry the vehicle: the estimate no longer descends, or the
@@ -804,10 +817,23 @@ impl ControlCore {
             let weight_per_kg = self.last_thrust_n / self.params.vehicle.mass_kg;
             let carried = step_accel.is_some_and(|f| f - weight_per_kg > GROUND_CONTACT_EXCESS * GRAVITY);
             let overdue = sp.position_m.z < traj.ground_height_m - TOUCHDOWN_EXPECTED_M;
-            let contact = est.velocity_m_s.z > -GROUND_CONTACT_SPEED_M_S || carried || overdue;
-            if !supported {
+            // The height estimate held at the floor counts too (a landing without vision descends on the
+            // estimate's speed, not to a height).
+            let contact = est.velocity_m_s.z > -GROUND_CONTACT_SPEED_M_S || carried || overdue || at_floor;
+            // A bounce on touchdown unsettles the specific force for a few samples; sinking through the air
+            // (the floor was not there) unsettles it for good: the wind-down stops after
+            // `GROUND_CONTACT_LOST_S` without support.
+            if supported {
+                self.unsupported_since_us = None;
+            } else {
+                self.unsupported_since_us.get_or_insert(now);
+            }
+            let lost = self
+                .unsupported_since_us
+                .is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 > GROUND_CONTACT_LOST_S);
+            if lost {
                 self.contact_since_us = None;
-            } else if contact || self.contact_since_us.is_some() {
+            } else if (contact && supported) || self.contact_since_us.is_some() {
                 let since = *self.contact_since_us.get_or_insert(now);
                 let t = now.saturating_sub(since) as f32 * 1e-6;
                 let cap =
@@ -816,6 +842,7 @@ impl ControlCore {
             }
         } else {
             self.contact_since_us = None;
+            self.unsupported_since_us = None;
         }
         self.last_thrust_n = if self.mode.airborne() { demand.thrust_n } else { 0.0 };
         let mut mix = MixerOutput::default();

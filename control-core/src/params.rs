@@ -491,6 +491,8 @@ pub struct EstimatorParams {
     /// Consecutive refused vision positions after which the position is reset to vision's (the estimate
     /// drifted while vision was out, as PX4's EKF2 resets to its aiding source after a fusion timeout).
     pub vision_position_reset_after: u8,
+    /// Standard deviation given to the velocity when the position is reset (m/s).
+    pub reset_velocity_sigma_m_s: f32,
     /// Innovations beyond this many standard deviations are rejected.
     pub gate_sigma: f32,
     /// Fixes older than this are not fused (s).
@@ -549,6 +551,7 @@ impl Default for EstimatorParams {
             mag_offset_learn_rate: 0.02,
             vision_yaw_reset_after: 5,
             vision_position_reset_after: 10,
+            reset_velocity_sigma_m_s: 0.5,
             gate_sigma: 5.0,
             max_fix_age_s: 0.25,
             mag_field_world: [0.2, -0.05, -0.4],
@@ -597,6 +600,11 @@ impl EstimatorParams {
             "must lie in (0, 1]",
         )?;
         check(self.vision_yaw_reset_after >= 1, "estimator.vision_yaw_reset_after", "must be at least 1")?;
+        check(
+            self.reset_velocity_sigma_m_s > 0.0 && self.reset_velocity_sigma_m_s <= 10.0,
+            "estimator.reset_velocity_sigma_m_s",
+            "must lie in (0, 10] m/s",
+        )?;
         check(
             self.vision_position_reset_after >= 1,
             "estimator.vision_position_reset_after",

@@ -151,6 +151,15 @@ impl Estimator {
             if self.vision_position_rejections >= self.params.vision_position_reset_after {
                 for axis in (0..3).filter(|a| observed(*a)) {
                     self.reset_position_axis(axis, fix.position_m[axis] + moved[axis], std_of(axis));
+                    // The velocity drifted with the position: its variance is opened (uncorrelated), so that
+                    // the next fixes correct it instead of being refused again.
+                    let iv = IV + axis;
+                    for i in 0..N {
+                        self.cov[iv][i] = 0.0;
+                        self.cov[i][iv] = 0.0;
+                    }
+                    let sv = self.params.reset_velocity_sigma_m_s;
+                    self.cov[iv][iv] = sv * sv;
                 }
                 self.vision_position_rejections = 0;
                 self.counters.position_resets += 1;
@@ -176,24 +185,27 @@ impl Estimator {
     }
 
     /// The floor is a hard limit: a height estimate below `floor_z` (the centre of mass's height on the pad)
-    /// is projected back onto it, and a descent through it stopped (pseudo-measurements, as for inequality
-    /// constraints in Simon and Chia, "Kalman filtering with state equality constraints", IEEE TAES 38(1),
-    /// 2002). Without vision near the floor the height is dead-reckoned and may otherwise sink through it.
-    /// Returns whether the constraint acted.
+    /// is projected back onto it (a pseudo-measurement, as for inequality constraints in Simon and Chia,
+    /// "Kalman filtering with state equality constraints", IEEE TAES 38(1), 2002). Without vision near the
+    /// floor the height is dead-reckoned and may otherwise sink through it. The vertical velocity is left to
+    /// the IMU: a dead-reckoned height at the floor does not mean the vehicle has stopped (it may still be in
+    /// the air, descending). Returns whether the constraint acted.
     pub fn constrain_above_floor(&mut self, floor_z: f32) -> bool {
         if !(self.p.z < floor_z) {
             return false;
         }
         let s = self.params.ground_height_sigma_m;
-        let mut h = [0.0; N];
-        h[IP + 2] = 1.0;
-        self.update(&h, floor_z - self.p.z, s * s, false);
-        if self.v.z < 0.0 {
-            let mut h = [0.0; N];
-            h[IV + 2] = 1.0;
-            let sv = self.params.still_velocity_sigma_m_s;
-            self.update(&h, -self.v.z, sv * sv, false);
+        // The height alone: its correlations would otherwise drag the velocity along.
+        let mut dx = [0.0; N];
+        dx[IP + 2] = floor_z - self.p.z;
+        self.inject(&dx);
+        for i in 0..N {
+            if i != IP + 2 {
+                self.cov[IP + 2][i] = 0.0;
+                self.cov[i][IP + 2] = 0.0;
+            }
         }
+        self.cov[IP + 2][IP + 2] = self.cov[IP + 2][IP + 2].max(s * s);
         self.counters.floor_constraints += 1;
         true
     }
