@@ -64,7 +64,7 @@ impl Default for VisionConfig {
             target: LineTarget::PAPER,
             mount: CameraMount::FORWARD_AT_CENTRE,
             pose: PoseParams::default(),
-            attitude_sigma_floor_rad: 0.005,
+            attitude_sigma_floor_rad: 0.02,
         }
     }
 }

@@ -284,6 +284,8 @@ pub struct Sil {
     tracking_since: Option<f64>,
     hover_since: Option<u64>,
     sent: [bool; 4],
+    /// When each of the operator's commands was last sent (for the retries of an unanswered one).
+    sent_at: [u64; 4],
     was_airborne: bool,
     done_at: Option<u64>,
     last_failsafe: Option<control_core::Failsafe>,
@@ -320,6 +322,9 @@ fn attitude_of(r: &[[f64; 3]; 3]) -> [f64; 3] {
     let yaw = n[1][0].atan2(n[0][0]);
     [roll, pitch, yaw]
 }
+
+/// The simulated operator sends an unanswered command again after this long (us).
+const COMMAND_RETRY_US: u64 = 1_000_000;
 
 impl Sil {
     /// Prepares a run with the flight stack in this process.
@@ -452,6 +457,7 @@ impl Sil {
             tracking_since: None,
             hover_since: None,
             sent: [false; 4],
+            sent_at: [0; 4],
             was_airborne: false,
             done_at: None,
             last_failsafe: None,
@@ -767,7 +773,31 @@ impl Sil {
             self.sent[3] = true;
             cmd = Some(Command::Land);
         }
+        // A command the vehicle has not acted on within a second is sent again, as a ground station retries
+        // an unacknowledged command (the link may have lost it): arm while disarmed, take off while armed,
+        // start the sweep or land while hovering.
+        if cmd.is_none() {
+            let waiting = [
+                (0, Command::Arm, mode == Some(FlightMode::Disarmed) && !self.was_airborne),
+                (1, Command::TakeOff, mode == Some(FlightMode::Armed)),
+                (2, Command::StartTracking, mode == Some(FlightMode::Hover) && self.tracking_since.is_none()),
+                (3, Command::Land, mode == Some(FlightMode::Hover) && self.tracking_since.is_some()),
+            ];
+            for (i, c, still) in waiting {
+                if self.sent[i] && still && self.t_us.saturating_sub(self.sent_at[i]) >= COMMAND_RETRY_US {
+                    cmd = Some(c);
+                    break;
+                }
+            }
+        }
         if let Some(c) = cmd {
+            let i = match c {
+                Command::Arm => 0,
+                Command::TakeOff => 1,
+                Command::StartTracking => 2,
+                _ => 3,
+            };
+            self.sent_at[i] = self.t_us;
             self.send(self.t_us + lat, Uplink::Command(c));
         }
         if self.t_us >= self.next_heartbeat_us {
