@@ -199,7 +199,7 @@ fn mission_take_off_track_land() {
     assert_eq!(h.command(Command::Land), Some(CommandResult::Accepted(Command::Land)));
     h.run_until(FlightMode::Disarmed, 15.0);
     assert_eq!(h.step(None).motors_rad_s, [0.0; 4]);
-    assert!(h.p.z < 0.1);
+    assert!(h.p.z < 0.1, "disarmed at {} m", h.p.z);
 }
 
 #[test]

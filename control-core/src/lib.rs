@@ -43,6 +43,10 @@ pub const LANDING_DEPTH_BELOW_FLOOR_M: f32 = 10.0;
 /// Landing: a vertical speed above minus this counts as not descending (m/s).
 pub const GROUND_CONTACT_SPEED_M_S: f32 = 0.05;
 
+/// Landing: the estimate counts as stalled (not descending) only once the descending reference is this far
+/// below it (m). At the start of a landing the vehicle hovers: not descending is no evidence of the floor.
+pub const GROUND_CONTACT_LAG_M: f32 = 0.15;
+
 /// Landing: a specific force this fraction of gravity beyond the thrust's share means the floor carries the
 /// vehicle (above what a vehicle 20 % lighter than configured shows in flight).
 pub const GROUND_CONTACT_EXCESS: f32 = 0.25;
@@ -805,7 +809,8 @@ impl ControlCore {
             demand.thrust_n = demand.thrust_n.min(BLIND_LANDING_THRUST_MARGIN * h / cos_tilt);
         }
         // Ground contact while landing. The thrust is wound down to idle in `ground_contact_ramp_s`, so that the
-        // land detector sees it, once the floor may carry the vehicle: the estimate no longer descends, or the
+        // land detector sees it, once the floor may carry the vehicle: the estimate no longer descends although the
+        // reference has left it `GROUND_CONTACT_LAG_M` behind, or the
         // specific force exceeds what the thrust explains, or the reference has gone `TOUCHDOWN_EXPECTED_M`
         // below the pad (touchdown is overdue: the height estimate, without vision near the floor, may have
         // drifted). The accelerometer decides, not the estimate: the wind-down goes on while the specific force
@@ -819,7 +824,9 @@ impl ControlCore {
             let overdue = sp.position_m.z < traj.ground_height_m - TOUCHDOWN_EXPECTED_M;
             // The height estimate held at the floor counts too (a landing without vision descends on the
             // estimate's speed, not to a height).
-            let contact = est.velocity_m_s.z > -GROUND_CONTACT_SPEED_M_S || carried || overdue || at_floor;
+            let stalled = est.velocity_m_s.z > -GROUND_CONTACT_SPEED_M_S
+                && est.position_m.z - sp.position_m.z > GROUND_CONTACT_LAG_M;
+            let contact = stalled || carried || overdue || at_floor;
             // A bounce on touchdown unsettles the specific force for a few samples; sinking through the air
             // (the floor was not there) unsettles it for good: the wind-down stops after
             // `GROUND_CONTACT_LOST_S` without support.

@@ -63,6 +63,10 @@ pub(crate) struct SweepRunArgs {
     /// Output directory: runs.csv, report.json, sweep.json, histogram_rms_{x,y,z}.png.
     #[arg(long)]
     pub(crate) out: PathBuf,
+    /// Bounds of the 95th percentile of the RMS errors x, y, z (m): exit 3 when one is exceeded (a gate for
+    /// CI, like a failed run).
+    #[arg(long, value_name = "X,Y,Z")]
+    pub(crate) p95_max: Option<String>,
 }
 
 pub(crate) fn sweep(a: &SweepArgs) -> Result<ExitCode> {
@@ -79,6 +83,20 @@ fn run(a: &SweepRunArgs) -> Result<ExitCode> {
     if a.runs == 0 {
         bail!("--runs must be at least 1");
     }
+    let p95_max = match &a.p95_max {
+        None => None,
+        Some(t) => {
+            let v: Vec<f64> = t
+                .split(',')
+                .map(|x| x.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| anyhow::anyhow!("--p95-max {t}: expected three numbers X,Y,Z (m)"))?;
+            match v.as_slice() {
+                [x, y, z] if v.iter().all(|b| b.is_finite() && *b > 0.0) => Some([*x, *y, *z]),
+                _ => bail!("--p95-max {t}: expected three positive numbers X,Y,Z (m)"),
+            }
+        }
+    };
     let shard = match &a.shard {
         Some(s) => Shard::parse(s)?,
         None => Shard::from_env(|k| std::env::var(k).ok(), a.shards)?.unwrap_or(Shard::ALL),
@@ -111,7 +129,21 @@ fn run(a: &SweepRunArgs) -> Result<ExitCode> {
         shard.count,
         mine as f64 / (wall * cores as f64 / 60.0)
     );
-    print_report(&r.report, &r.files)
+    let code = print_report(&r.report, &r.files)?;
+    if let Some(b) = p95_max {
+        let p = &r.report["p95_rms_error_m"];
+        let over: Vec<String> = ["x", "y", "z"]
+            .iter()
+            .zip(b)
+            .filter(|(k, lim)| !p[**k].as_f64().is_some_and(|v| v <= *lim))
+            .map(|(k, lim)| format!("{k} {} > {lim}", p[*k]))
+            .collect();
+        if !over.is_empty() {
+            eprintln!("p95 RMS error over its bound: {}", over.join(", "));
+            return Ok(ExitCode::from(3));
+        }
+    }
+    Ok(code)
 }
 
 fn merge(a: &MergeArgs) -> Result<ExitCode> {
