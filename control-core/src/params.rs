@@ -540,7 +540,7 @@ impl Default for EstimatorParams {
     fn default() -> Self {
         Self {
             gyro_noise: 1e-3,
-            accel_noise: 0.03,
+            accel_noise: 0.045,
             gyro_bias_walk: 1e-3,
             accel_bias_walk: 3e-3,
             vision_position_floor_m: 0.004,

@@ -174,6 +174,11 @@ fn print_report(r: &serde_json::Value, files: &[PathBuf]) -> Result<ExitCode> {
             w["command"].as_str().unwrap_or("")
         );
     }
+    if let Some(n) = r["aborted"].as_u64().filter(|n| *n > 0) {
+        eprintln!(
+            "  {n} runs landed by a failsafe before tracking (a fault during the take-off): see aborted_runs"
+        );
+    }
     eprintln!("wrote:");
     for p in files {
         eprintln!("  {}", p.display());

@@ -362,7 +362,9 @@ fn report(header: &[String], rows: &[Vec<String>], meta: &Value) -> Value {
             "failsafes": get(r, c("failsafes")),
         })
     };
-    // Failures: crashed, not landed and disarmed, wall contact, or no tracking at all.
+    // Failures: crashed, wall contact, or not landed and disarmed. A run whose fault came before the sweep
+    // began and whose failsafe landed it safely never tracked: it is an abort, listed apart (the mission's
+    // safe outcome, without a tracking error to rank).
     let failures: Vec<Value> = rows
         .iter()
         .filter_map(|r| {
@@ -372,21 +374,29 @@ fn report(header: &[String], rows: &[Vec<String>], meta: &Value) -> Value {
                 "wall contact".to_string()
             } else if get(r, il) != "true" {
                 "did not land and disarm".to_string()
-            } else if rms(r).iter().any(|v| !v.is_finite()) {
-                "never tracked".to_string()
             } else {
                 return None;
             };
             Some(entry(r, why))
         })
         .collect();
-    // The worst by the largest RMS error relative to its bound (y, z 4 cm; x 6 cm).
+    let aborted: Vec<Value> = rows
+        .iter()
+        .filter(|r| {
+            get(r, ic) != "true"
+                && get(r, iw) != "true"
+                && get(r, il) == "true"
+                && rms(r).iter().any(|v| !v.is_finite())
+        })
+        .map(|r| entry(r, "landed by a failsafe before tracking".to_string()))
+        .collect();
+    // The worst tracked runs by the largest RMS error relative to its bound (y, z 4 cm; x 6 cm).
     let mut by: Vec<(f64, &Vec<String>)> = rows
         .iter()
-        .map(|r| {
+        .filter_map(|r| {
             let e = rms(r);
             let s = (e[0] / 0.06).max(e[1] / 0.04).max(e[2] / 0.04);
-            (if s.is_finite() { s } else { f64::INFINITY }, r)
+            s.is_finite().then_some((s, r))
         })
         .collect();
     by.sort_by(|a, b| b.0.total_cmp(&a.0).then_with(|| get(a.1, 0).cmp(get(b.1, 0))));
@@ -405,10 +415,14 @@ fn report(header: &[String], rows: &[Vec<String>], meta: &Value) -> Value {
         "p95_tilt_error_rms_deg": p95(rows.iter().map(|r| fnum(r, c("tilt_error_rms_deg"))).collect()),
         "worst": worst,
         "failed": failures,
+        "aborted": aborted.len(),
+        "aborted_runs": aborted,
         "definitions": {
             "rms_error_m": "true minus desired position over each run's tracking phase, RMS",
             "landed": "ended on the floor, disarmed",
             "wall_contacts": "runs whose centre came closer to the wall than the arm and a rotor radius",
+            "failures": "runs that crashed, touched the wall, or did not land and disarm",
+            "aborted": "runs that landed and disarmed by a failsafe before the sweep began (no tracking error)",
         },
     })
 }
