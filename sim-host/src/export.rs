@@ -196,7 +196,8 @@ fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
                 ),
             });
         }
-        LogRecord::Frame(_) => {}
+        // Frames have topics of their own; the end record is the file's, not the flight's.
+        LogRecord::Frame(_) | LogRecord::End { .. } => {}
     }
 }
 

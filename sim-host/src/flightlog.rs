@@ -2,12 +2,18 @@
 //! replayed bit for bit (`sim-host replay`). Specified in `docs/log-format.md`.
 //!
 //! ```text
-//! file   = magic version header_len header frame*
+//! file   = magic version header_len header header_crc frame* end
 //! magic  = "WLQLOG" (6 bytes)
 //! version = LOG_FORMAT_VERSION, u16 little endian
 //! header_len = u32 little endian; header = that many bytes of UTF-8 JSON (LogHeader)
+//! header_crc = CRC-32 (IEEE) of the header's JSON, u32 little endian
 //! frame  = protocol::frame layout (COBS, wire version, CRC-16) of one `LogRecord`, up to MAX_LOG_FRAME bytes
+//! end    = the frame of `LogRecord::End`: how many frames came before it and the CRC-32 of their bytes
 //! ```
+//!
+//! A log without its end record was cut short (the writer was stopped, or the file truncated, at a record
+//! boundary or inside one); one whose count or CRC-32 disagrees was damaged. Both are reported as damage,
+//! with the intact records still read.
 //!
 //! The records are those of the firmware in the loop (`flight_core::fil`) and of the radio link: the radio
 //! messages delivered before a step, the step's sensors, the step's report, the downlink messages the vehicle
@@ -25,7 +31,7 @@ use std::path::Path;
 /// The file's first bytes.
 pub const LOG_MAGIC: &[u8; 6] = b"WLQLOG";
 /// Version of the log layout (header and record kinds).
-pub const LOG_FORMAT_VERSION: u16 = 3;
+pub const LOG_FORMAT_VERSION: u16 = 4;
 /// The longest record frame a reader accepts (a raw 4K RGB frame fits): longer ones are damage.
 pub const MAX_LOG_FRAME: usize = 64 << 20;
 /// File name `sim-host fly` writes in its output directory.
@@ -60,6 +66,14 @@ pub enum LogRecord {
     /// A recorded reference of the vehicle's state from another source than this flight code (an imported
     /// dataset's ground truth, another estimator's output), what `replay --summary` compares against.
     Reference(ReferenceState),
+    /// The last record: the writer finished. How many record frames came before it and the CRC-32 (IEEE) of
+    /// their bytes (every byte from the end of the header to this frame's first).
+    End {
+        /// Record frames before this one.
+        records: u64,
+        /// CRC-32 of their bytes.
+        crc32: u32,
+    },
 }
 
 /// A reference state at a time, in this project's frames (world `W`, body FLU).
@@ -86,6 +100,7 @@ impl LogRecord {
             LogRecord::Frame(_) => "frame",
             LogRecord::Downlink(_) => "downlink",
             LogRecord::Reference(_) => "reference",
+            LogRecord::End { .. } => "end",
         }
     }
 }
@@ -314,15 +329,22 @@ pub fn record_frame(r: &LogRecord) -> Result<Vec<u8>> {
     Ok(out)
 }
 
-/// The bytes before the first record: magic, format version, header length, header JSON.
+/// The bytes before the first record: magic, format version, header length, header JSON, its CRC-32.
 pub fn header_bytes(header: &LogHeader) -> Result<Vec<u8>> {
     let json = serde_json::to_vec(header)?;
-    let mut out = Vec::with_capacity(12 + json.len());
+    let mut out = Vec::with_capacity(16 + json.len());
     out.extend_from_slice(LOG_MAGIC);
     out.extend_from_slice(&LOG_FORMAT_VERSION.to_le_bytes());
     out.extend_from_slice(&(json.len() as u32).to_le_bytes());
     out.extend_from_slice(&json);
+    out.extend_from_slice(&crc32fast::hash(&json).to_le_bytes());
     Ok(out)
+}
+
+/// The end record of a log whose record frames (after the header) are `frames`, concatenated.
+pub fn end_record(frames: &[u8]) -> LogRecord {
+    let records = frames.iter().filter(|&&b| b == 0).count() as u64;
+    LogRecord::End { records, crc32: crc32fast::hash(frames) }
 }
 
 /// Writes a log.
@@ -332,6 +354,7 @@ pub struct LogWriter {
     pub records: u64,
     /// Bytes written.
     pub bytes: u64,
+    crc: crc32fast::Hasher,
 }
 
 impl LogWriter {
@@ -340,20 +363,28 @@ impl LogWriter {
         let mut out = crate::files::AtomicFile::create(path)?;
         let head = header_bytes(header)?;
         out.write_all(&head)?;
-        Ok(Self { out, records: 0, bytes: head.len() as u64 })
+        Ok(Self { out, records: 0, bytes: head.len() as u64, crc: crc32fast::Hasher::new() })
     }
 
-    /// Appends one record.
+    /// Appends one record (an `End` record is the writer's own: [`LogWriter::finish`] writes it).
     pub fn write(&mut self, r: &LogRecord) -> Result<()> {
+        if matches!(r, LogRecord::End { .. }) {
+            bail!("the end-of-log record is written by the writer's finish, not by its caller");
+        }
         let frame = record_frame(r)?;
         self.out.write_all(&frame)?;
+        self.crc.update(&frame);
         self.records += 1;
         self.bytes += frame.len() as u64;
         Ok(())
     }
 
-    /// Flushes to disk and moves the file into place under its name.
-    pub fn finish(self) -> Result<()> {
+    /// Writes the end record, flushes to disk and moves the file into place under its name.
+    pub fn finish(mut self) -> Result<()> {
+        let end = LogRecord::End { records: self.records, crc32: self.crc.clone().finalize() };
+        let frame = record_frame(&end)?;
+        self.out.write_all(&frame)?;
+        self.bytes += frame.len() as u64;
         self.out.commit()
     }
 }
@@ -395,6 +426,13 @@ pub struct LogReader<R: BufRead> {
     skip_frames: bool,
     /// Camera frames skipped unread ([`LogReader::skip_frames`]).
     pub frames_skipped: u64,
+    /// CRC-32 of every byte after the header read so far, and at the current frame's start.
+    crc: crc32fast::Hasher,
+    crc_at_frame: crc32fast::Hasher,
+    /// Frames (delimited) read before the current one.
+    frames_read: u64,
+    /// Where the end record was, once read: anything after it is damage.
+    end_seen: Option<usize>,
 }
 
 /// One item of a log: an intact record with its byte offset, or a damaged stretch.
@@ -413,6 +451,12 @@ impl<R: BufRead> LogReader<R> {
             bail!("truncated: the file ends at byte {got}, inside the 12-byte preamble");
         }
         let version = u16::from_le_bytes([head[6], head[7]]);
+        if version == 3 {
+            bail!(
+                "log format version 3 at byte 6: written before logs had a header checksum and an end record; \
+                 this reader reads version {LOG_FORMAT_VERSION} (replay it with the sim-host that wrote it, or fly it again)"
+            );
+        }
         if version != LOG_FORMAT_VERSION {
             bail!("log format version {version} at byte 6; this reader reads version {LOG_FORMAT_VERSION}");
         }
@@ -420,13 +464,24 @@ impl<R: BufRead> LogReader<R> {
         if len > 16 << 20 {
             bail!("the header length at byte 8 says {len} bytes: not a plausible header (damaged?)");
         }
-        let mut json = vec![0u8; len];
+        let mut json = vec![0u8; len + 4];
         let got = read_full(&mut input, &mut json)?;
-        if got < len {
+        if got < len + 4 {
             bail!(
-                "the header (bytes 12..{}) runs past the end of the file ({} bytes): truncated",
-                12 + len,
+                "the header and its checksum (bytes 12..{}) run past the end of the file ({} bytes): truncated",
+                16 + len,
                 12 + got
+            );
+        }
+        let stored = u32::from_le_bytes([json[len], json[len + 1], json[len + 2], json[len + 3]]);
+        json.truncate(len);
+        let computed = crc32fast::hash(&json);
+        if stored != computed {
+            bail!(
+                "the header's checksum at byte {} is {stored:08x}, its JSON (bytes 12..{}) gives {computed:08x}: \
+                 the header is damaged",
+                12 + len,
+                12 + len
             );
         }
         let header: LogHeader = serde_json::from_slice(&json)
@@ -442,11 +497,15 @@ impl<R: BufRead> LogReader<R> {
         Ok(Self {
             input,
             header,
-            offset: 12 + len,
+            offset: 16 + len,
             frame: Vec::new(),
             done: false,
             skip_frames: false,
             frames_skipped: 0,
+            crc: crc32fast::Hasher::new(),
+            crc_at_frame: crc32fast::Hasher::new(),
+            frames_read: 0,
+            end_seen: None,
         })
     }
 
@@ -486,6 +545,7 @@ impl<R: BufRead> Iterator for LogReader<R> {
             }
             let start = self.offset;
             self.frame.clear();
+            self.crc_at_frame = self.crc.clone();
             // Read up to the delimiter, but never more than the largest frame: a stretch without delimiters
             // (damage) is skipped in bounded memory.
             let mut oversized = false;
@@ -518,6 +578,7 @@ impl<R: BufRead> Iterator for LogReader<R> {
                         skipping = self.skip_frames && is_frame_record(&self.frame);
                     }
                 }
+                self.crc.update(&buf[..take]);
                 self.input.consume(take);
                 self.offset += take;
                 if found {
@@ -528,7 +589,18 @@ impl<R: BufRead> Iterator for LogReader<R> {
             if !delimited {
                 self.done = true;
                 if self.offset == start {
-                    return None;
+                    if self.end_seen.is_some() {
+                        return None;
+                    }
+                    // Cut short at a record boundary: every frame intact, the end record missing.
+                    return Some(Err(LogDamage {
+                        offset: start,
+                        what: format!(
+                            "no end-of-log record: the log ends at byte {start} after {} records (the writer \
+                             did not finish, or the file was truncated)",
+                            self.frames_read
+                        ),
+                    }));
                 }
                 return Some(Err(LogDamage {
                     offset: start,
@@ -539,6 +611,7 @@ impl<R: BufRead> Iterator for LogReader<R> {
                 }));
             }
             if oversized {
+                self.frames_read += 1;
                 return Some(Err(LogDamage {
                     offset: start,
                     what: format!("oversized frame ({} bytes, at most {MAX_LOG_FRAME})", self.offset - start),
@@ -547,6 +620,13 @@ impl<R: BufRead> Iterator for LogReader<R> {
             if self.frame.is_empty() {
                 continue;
             }
+            if let Some(end) = self.end_seen {
+                return Some(Err(LogDamage {
+                    offset: start,
+                    what: format!("a record after the end-of-log record at byte {end}"),
+                }));
+            }
+            self.frames_read += 1;
             if skipping {
                 self.frames_skipped += 1;
                 continue;
@@ -556,6 +636,22 @@ impl<R: BufRead> Iterator for LogReader<R> {
                 Some(n) => decode_raw::<LogRecord>(&self.frame[..n]),
             };
             return Some(match result {
+                Ok(LogRecord::End { records, crc32 }) => {
+                    self.end_seen = Some(start);
+                    let before = self.frames_read - 1;
+                    let crc = self.crc_at_frame.clone().finalize();
+                    if records != before || crc32 != crc {
+                        Err(LogDamage {
+                            offset: start,
+                            what: format!(
+                                "the end-of-log record says {records} records with CRC-32 {crc32:08x}; the \
+                                 log holds {before} with CRC-32 {crc:08x} (records lost or damaged before it)"
+                            ),
+                        })
+                    } else {
+                        Ok((start, LogRecord::End { records, crc32 }))
+                    }
+                }
                 Ok(r) => Ok((start, r)),
                 Err(e) => Err(LogDamage { offset: start, what: frame_error_text(e) }),
             });
@@ -661,15 +757,97 @@ mod tests {
             framed,
             unhex("0A 01 04 01 03 C8 01 02 01 01 01 01 01 01 01 01 01 01 01 01 01 01 03 02 07 03 7E A0 00")
         );
+        // The end record: 07, two records as varint 02, the CRC-32 of their 36 bytes (u32 varint).
+        let mut frames = framed.clone();
+        frames.extend_from_slice(&hb);
+        let end = end_record(&frames);
+        assert_eq!(end, LogRecord::End { records: 2, crc32: crc32fast::hash(&frames) });
+        let end_frame = record_frame(&end).unwrap();
+        // 01 | 07 (End) 02 | CRC-32 0x98F4688F as varint 8F D1 D1 C7 09 | CRC-16 0x3139; COBS, delimiter.
+        assert_eq!(hex(&end_frame), "0B 01 07 02 8F D1 D1 C7 09 39 31 00");
         // Decodes back through the reader.
         let mut bytes = header_bytes(&sample_header()).unwrap();
-        bytes.extend_from_slice(&framed);
-        bytes.extend_from_slice(&hb);
+        bytes.extend_from_slice(&frames);
+        bytes.extend_from_slice(&end_frame);
         let log = parse_log(&bytes).unwrap();
+        assert!(log.damage.is_empty(), "{:?}", log.damage);
         assert_eq!(
             log.records.iter().map(|(_, r)| r.clone()).collect::<Vec<_>>(),
-            [f, LogRecord::Link(Uplink::Heartbeat)]
+            [f, LogRecord::Link(Uplink::Heartbeat), end]
         );
+    }
+
+    fn sample_log() -> Vec<u8> {
+        let mut frames = Vec::new();
+        for k in 0..5u64 {
+            frames.extend(
+                record_frame(&LogRecord::Truth {
+                    time_us: 1000 * k,
+                    position_m: [k as f32; 3],
+                    velocity_m_s: [0.0; 3],
+                    attitude_rad: [0.0; 3],
+                })
+                .unwrap(),
+            );
+        }
+        let mut bytes = header_bytes(&sample_header()).unwrap();
+        bytes.extend_from_slice(&frames);
+        bytes.extend(record_frame(&end_record(&frames)).unwrap());
+        bytes
+    }
+
+    #[test]
+    fn a_log_cut_at_a_record_boundary_is_damage_not_a_shorter_flight() {
+        let bytes = sample_log();
+        assert!(parse_log(&bytes).unwrap().damage.is_empty());
+        // Cut after the third record: every frame intact, the end record missing.
+        let head = header_bytes(&sample_header()).unwrap().len();
+        let cut: Vec<u8> = {
+            let mut zeros = bytes.iter().enumerate().skip(head).filter(|(_, b)| **b == 0).map(|(i, _)| i);
+            let third = zeros.nth(2).unwrap();
+            bytes[..=third].to_vec()
+        };
+        let log = parse_log(&cut).unwrap();
+        assert_eq!(log.records.len(), 3);
+        assert_eq!(log.damage.len(), 1);
+        assert!(log.damage[0].what.contains("no end-of-log record"), "{}", log.damage[0]);
+        assert_eq!(log.damage[0].offset, cut.len());
+        // A record dropped from the middle (its frame removed whole): the end record's count says so.
+        let mut zeros = bytes.iter().enumerate().skip(head).filter(|(_, b)| **b == 0).map(|(i, _)| i);
+        let (a, b) = (zeros.next().unwrap(), zeros.next().unwrap());
+        let mut dropped = bytes[..=a].to_vec();
+        dropped.extend_from_slice(&bytes[b + 1..]);
+        let log = parse_log(&dropped).unwrap();
+        assert_eq!(log.records.len(), 4, "the other records are read");
+        assert!(log.damage.iter().any(|d| d.what.contains("says 5 records")), "{:?}", log.damage);
+        // Something after the end record.
+        let mut extra = bytes.clone();
+        extra.extend(record_frame(&LogRecord::Link(Uplink::Heartbeat)).unwrap());
+        let log = parse_log(&extra).unwrap();
+        assert!(
+            log.damage.iter().any(|d| d.what.contains("after the end-of-log record")),
+            "{:?}",
+            log.damage
+        );
+    }
+
+    #[test]
+    fn a_damaged_header_is_refused_and_an_older_format_named() {
+        let bytes = sample_log();
+        let head = header_bytes(&sample_header()).unwrap().len();
+        // Every single-bit change in the header's JSON or its checksum is refused, naming the checksum.
+        for i in 12..head {
+            for bit in [0x01u8, 0x10] {
+                let mut b = bytes.clone();
+                b[i] ^= bit;
+                let e = format!("{:#}", parse_log(&b).unwrap_err());
+                assert!(e.contains("checksum") || e.contains("header"), "byte {i}: {e}");
+            }
+        }
+        let mut v3 = bytes.clone();
+        v3[6] = 3;
+        let e = format!("{:#}", parse_log(&v3).unwrap_err());
+        assert!(e.contains("version 3") && e.contains("end record"), "{e}");
     }
 
     fn sample_header() -> LogHeader {
@@ -690,15 +868,16 @@ mod tests {
     #[test]
     fn golden_bytes_of_the_header_and_the_schema_hash() {
         let b = header_bytes(&sample_header()).unwrap();
-        // "WLQLOG", version 3 (u16 LE), JSON length (u32 LE), the JSON.
-        assert_eq!(&b[..8], b"WLQLOG\x03\x00");
+        // "WLQLOG", version 4 (u16 LE), JSON length (u32 LE), the JSON, its CRC-32 (u32 LE).
+        assert_eq!(&b[..8], b"WLQLOG\x04\x00");
         let len = u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize;
-        assert_eq!(b.len(), 12 + len);
-        assert!(
-            std::str::from_utf8(&b[12..]).unwrap().starts_with("{\"format_version\":3,\"schema_hash\":\"")
-        );
+        assert_eq!(b.len(), 16 + len);
+        let json = &b[12..12 + len];
+        assert!(std::str::from_utf8(json).unwrap().starts_with("{\"format_version\":4,\"schema_hash\":\""));
+        assert_eq!(b[12 + len..], crc32fast::hash(json).to_le_bytes());
+        assert_eq!(crc32fast::hash(b"123456789"), 0xCBF4_3926, "CRC-32 (IEEE) check value");
         // The schema fingerprint of this version's records: any change to a record's fields changes it.
-        assert_eq!(schema_hash(), "341115565529c6e4");
+        assert_eq!(schema_hash(), "e50a78020e1f3339");
     }
 
     #[test]

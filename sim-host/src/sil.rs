@@ -875,7 +875,10 @@ impl Sil {
         if self.flight_log.is_some() {
             let step = flight_core::fil::SensorStep {
                 time_us: self.t_us,
-                imu: heapless::Vec::from_slice(&self.pending_imu).unwrap_or_default(),
+                // Scenario validation keeps a control step within `MAX_IMU_PER_STEP` samples
+                // (`mission.control_rate_hz`): a step's samples always fit its record.
+                imu: heapless::Vec::from_slice(&self.pending_imu)
+                    .expect("scenario validation bounds the IMU samples per control step"),
                 mag: step_mag,
                 landed: None,
             };

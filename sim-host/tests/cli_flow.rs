@@ -124,6 +124,8 @@ fn bad_input_is_a_message_and_exit_1() {
         (vec!["vision", "flow", "--prev", a, "--next", "/no/such/file.png"], "file.png"),
         (vec!["vision", "flow", "--prev", forward.to_str().unwrap(), "--next", a], "160x120"),
         (vec!["vision", "flow", "--prev", a, "--next", a, "--dt", "-1"], "--dt"),
+        (vec!["vision", "flow", "--prev", a, "--next", a, "--dt", "1e-30"], "--dt must lie in [1e-4, 1] s"),
+        (vec!["render", "--pose", "1e39,1.3,0.8,0,0,0", "--out", "/tmp/x.png"], "within 100 m"),
         (vec!["vision", "flow", "--prev", a, "--next", a, "--gyro", "1,2,3"], "--gyro needs --dt"),
         (vec!["vision", "flow", "--prev", a, "--next", a, "--dt", "0.02", "--gyro", "1,2"], "--gyro"),
         (vec!["vision", "flow", "--prev", a, "--next", a, "--range", "0"], "--range"),
@@ -141,6 +143,36 @@ fn bad_input_is_a_message_and_exit_1() {
                 "/tmp/x.png",
             ],
             "--camera down",
+        ),
+        // The scenario's limits, not looser ones of the CLI's own (down_camera.blur_sigma_px <= 1 px,
+        // down_camera.exposure_time_s <= one frame interval at 60 Hz).
+        (
+            vec![
+                "render",
+                "--camera",
+                "down",
+                "--pose",
+                "1,1.3,0.8,0,0,0",
+                "--blur",
+                "1.4",
+                "--out",
+                "/tmp/x.png",
+            ],
+            "[0, 1] px",
+        ),
+        (
+            vec![
+                "render",
+                "--camera",
+                "down",
+                "--pose",
+                "1,1.3,0.8,0,0,0",
+                "--exposure-time",
+                "0.05",
+                "--out",
+                "/tmp/x.png",
+            ],
+            "1 / down_camera.rate_hz",
         ),
     ] {
         let out = run(&args);

@@ -119,6 +119,16 @@ fn fly_writes_a_log_that_replay_matches_bit_for_bit() {
     let err = String::from_utf8_lossy(&r.stderr);
     assert_eq!(r.status.code(), Some(1), "{err}");
     assert!(err.contains("damaged record at byte"), "{err}");
+    // Cut exactly at a record boundary (half the log gone, every remaining record intact): it used to replay
+    // as an identical shorter flight with exit 0.
+    let whole = std::fs::read(&log).unwrap();
+    let cut_at = whole.iter().enumerate().skip(whole.len() / 2).find(|(_, b)| **b == 0).unwrap().0 + 1;
+    let cut = dir.join("cut.log");
+    std::fs::write(&cut, &whole[..cut_at]).unwrap();
+    let r = bin().arg("replay").arg(&cut).output().unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(err.contains("no end-of-log record"), "{err}");
     // Bad options.
     let r = bin().arg("replay").arg(&log).args(["--set", "no.such.param=1"]).output().unwrap();
     assert_eq!(r.status.code(), Some(1));

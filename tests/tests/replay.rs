@@ -60,6 +60,11 @@ fn damaged_logs_give_offsets_and_keep_the_intact_records() {
     let n = good.records.len();
     let mid = good.records[n / 2].0;
 
+    // The last record is the end record, and an intact log has no damage.
+    assert!(good.damage.is_empty());
+    assert!(matches!(good.records[n - 1].1, LogRecord::End { .. }));
+    let end = good.records[n - 1].0;
+
     // Truncated in the middle of a record: every record before it is read, the tail is reported.
     let cut = &bytes[..mid + 5];
     let log = parse_log(cut).unwrap();
@@ -68,13 +73,24 @@ fn damaged_logs_give_offsets_and_keep_the_intact_records() {
     assert_eq!(log.damage[0].offset, mid);
     assert!(log.damage[0].what.contains("truncated"), "{}", log.damage[0]);
 
-    // A flipped byte inside one record: that record is reported at its offset, all others are read.
+    // Truncated exactly between two records (it used to replay as a shorter, intact flight): the missing end
+    // record is reported where the file ends.
+    let log = parse_log(&bytes[..mid]).unwrap();
+    assert_eq!(log.records.len(), n / 2);
+    assert_eq!(log.damage.len(), 1);
+    assert_eq!(log.damage[0].offset, mid);
+    assert!(log.damage[0].what.contains("no end-of-log record"), "{}", log.damage[0]);
+
+    // A flipped byte inside one record: that record is reported at its offset, all others are read, and the
+    // end record says that what came before it is not what was written.
     let mut flipped = bytes.clone();
     flipped[mid + 3] ^= 0x5A;
     let log = parse_log(&flipped).unwrap();
-    assert_eq!(log.records.len(), n - 1);
-    assert_eq!(log.damage.len(), 1, "{:?}", log.damage);
+    assert_eq!(log.records.len(), n - 2);
+    assert_eq!(log.damage.len(), 2, "{:?}", log.damage);
     assert_eq!(log.damage[0].offset, mid);
+    assert_eq!(log.damage[1].offset, end);
+    assert!(log.damage[1].what.contains("CRC-32"), "{}", log.damage[1]);
 
     // Another format version: a clear error naming the byte.
     let mut v = bytes.clone();
@@ -95,10 +111,15 @@ fn damaged_logs_give_offsets_and_keep_the_intact_records() {
     unknown.push(0);
     unknown.extend_from_slice(&bytes[mid..]);
     let log = parse_log(&unknown).unwrap();
-    assert_eq!(log.records.len(), n);
-    assert_eq!(log.damage.len(), 1);
+    assert_eq!(
+        log.records.len(),
+        n - 1,
+        "every written record but the end record, which counts one too many"
+    );
+    assert_eq!(log.damage.len(), 2);
     assert_eq!(log.damage[0].offset, mid);
     assert!(log.damage[0].what.contains("unknown record kind"), "{}", log.damage[0]);
+    assert!(log.damage[1].what.contains(&format!("says {} records", n - 1)), "{}", log.damage[1]);
 }
 
 #[test]

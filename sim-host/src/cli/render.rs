@@ -80,14 +80,20 @@ pub(crate) fn render_down(a: &RenderArgs, scenario: &Scenario, pose: [f64; 6]) -
         settings.noise_sigma = n;
     }
     if let Some(b) = a.blur {
-        if !(0.0..=1.5).contains(&b) {
-            bail!("--blur must lie in [0, 1.5] px for the downward camera");
+        // The scenario's limit (`down_camera.blur_sigma_px`): one limit for one quantity.
+        if !(0.0..=sim_host::scenario::DOWN_BLUR_MAX_PX).contains(&b) {
+            bail!(
+                "--blur must lie in [0, {}] px for the downward camera",
+                sim_host::scenario::DOWN_BLUR_MAX_PX
+            );
         }
         settings.blur_sigma_px = b;
     }
     if let Some(e) = a.exposure_time {
-        if !(0.0..=0.1).contains(&e) {
-            bail!("--exposure-time must lie in [0, 0.1] s");
+        // The scenario's limit (`down_camera.exposure_time_s`): at most one frame interval.
+        let max = 1.0 / scenario.down_camera.rate_hz;
+        if !(0.0..=max).contains(&e) {
+            bail!("--exposure-time must lie in [0, 1 / down_camera.rate_hz = {max:.4}] s");
         }
         settings.exposure_time_s = e;
     }
@@ -125,6 +131,11 @@ pub(crate) fn render_down(a: &RenderArgs, scenario: &Scenario, pose: [f64; 6]) -
 pub(crate) fn render(a: &RenderArgs) -> Result<ExitCode> {
     let scenario = Scenario::load(&a.scenario)?;
     let pose = parse_floats::<6>(&a.pose, "--pose")?;
+    // A vehicle in the room: positions within 100 m of the origin, angles within one turn (a pose far outside
+    // used to render a black frame with exit 0).
+    if pose[..3].iter().any(|v| v.abs() > 100.0) || pose[3..].iter().any(|v| v.abs() > 360.0) {
+        bail!("--pose: X,Y,Z must lie within 100 m of the origin and ROLL,PITCH,YAW within +-360 deg");
+    }
     if a.camera == CameraChoice::Down {
         return render_down(a, &scenario, pose);
     }
@@ -153,8 +164,8 @@ pub(crate) fn render(a: &RenderArgs) -> Result<ExitCode> {
         settings.noise_sigma = n;
     }
     if let Some(b) = a.blur {
-        if !(0.0..=5.0).contains(&b) {
-            bail!("--blur must lie in [0, 5] px");
+        if !(0.0..=sim_host::scenario::FORWARD_BLUR_MAX_PX).contains(&b) {
+            bail!("--blur must lie in [0, {}] px", sim_host::scenario::FORWARD_BLUR_MAX_PX);
         }
         settings.blur_sigma_px = b;
     }

@@ -150,9 +150,11 @@ pub(crate) fn vision_flow(a: &FlowArgs) -> Result<ExitCode> {
     };
     let (prev, next) = (load(&a.prev)?, load(&a.next)?);
     if let Some(dt) = a.dt
-        && !(dt > 0.0 && dt.is_finite() && dt <= 1.0)
+        && !(dt.is_finite() && (1e-4..=1.0).contains(&dt))
     {
-        bail!("--dt must lie in (0, 1] s");
+        // Between two frames of a camera: from 10 kHz to 1 Hz (a shorter interval turns pixel noise into
+        // absurd speeds).
+        bail!("--dt must lie in [1e-4, 1] s (the interval between the two frames)");
     }
     if let Some(r) = a.range
         && !(r > 0.0 && r.is_finite())

@@ -449,6 +449,7 @@ pub struct Scenario {
 
 mod robustness;
 mod validate;
+pub use validate::{DOWN_BLUR_MAX_PX, FORWARD_BLUR_MAX_PX};
 
 pub use robustness::{FaultConfig, FaultKind, GustConfig, MismatchConfig, WindConfig};
 
@@ -625,5 +626,22 @@ mod tests {
         let e = format!("{:#}", Scenario::from_toml(&bad).unwrap_err());
         assert!(e.contains("carpet"), "{e}");
         assert!(Scenario::load("no-such-scenario").is_err());
+    }
+
+    #[test]
+    fn a_control_rate_that_would_drop_imu_samples_is_refused() {
+        // 1000 Hz IMU, 200 Hz control: five samples per step, one more than a step carries (it used to be
+        // logged as a step without IMU, silently).
+        let text = BUILT_IN[0].1;
+        let slow = text.replace("control_rate_hz = 500.0", "control_rate_hz = 200.0");
+        let e = format!("{:#}", Scenario::from_toml(&slow).unwrap_err());
+        assert!(e.contains("mission.control_rate_hz") && e.contains("250 Hz"), "{e}");
+        // Four samples per step still fit.
+        let ok = text.replace("control_rate_hz = 500.0", "control_rate_hz = 250.0");
+        Scenario::from_toml(&ok).unwrap();
+        // A physics step that would divide by (almost) zero.
+        let tiny = text.replace("physics_step_s = 0.001", "physics_step_s = 1e-30");
+        let e = format!("{:#}", Scenario::from_toml(&tiny).unwrap_err());
+        assert!(e.contains("model.physics_step_s"), "{e}");
     }
 }

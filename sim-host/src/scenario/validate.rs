@@ -1,6 +1,12 @@
 //! The scenario's checks: every value against its range, errors naming the field.
 use super::*;
 
+/// The forward camera's largest Gaussian blur (px): the scenario's `forward_camera.blur_sigma_px` and
+/// `sim-host render --camera forward --blur` share it.
+pub const FORWARD_BLUR_MAX_PX: f64 = 5.0;
+/// The downward camera's largest Gaussian blur (px), for `down_camera.blur_sigma_px` and `render --camera down`.
+pub const DOWN_BLUR_MAX_PX: f64 = 1.0;
+
 pub(super) fn check(ok: bool, field: &str, what: &str) -> Result<()> {
     if ok { Ok(()) } else { bail!("invalid value of `{field}`: {what}") }
 }
@@ -97,9 +103,9 @@ impl Scenario {
             "must be >= 0",
         )?;
         check(
-            c.blur_sigma_px.is_finite() && (0.0..=5.0).contains(&c.blur_sigma_px),
+            c.blur_sigma_px.is_finite() && (0.0..=FORWARD_BLUR_MAX_PX).contains(&c.blur_sigma_px),
             "forward_camera.blur_sigma_px",
-            "must lie in [0, 5]",
+            &format!("must lie in [0, {FORWARD_BLUR_MAX_PX}] px"),
         )?;
         check(c.exposure.is_finite() && c.exposure > 0.0, "forward_camera.exposure", "must be positive")?;
         check(
@@ -165,9 +171,9 @@ impl Scenario {
         check(d.exposure.is_finite() && d.exposure > 0.0, "down_camera.exposure", "must be positive")?;
         check(d.noise_sigma.is_finite() && d.noise_sigma >= 0.0, "down_camera.noise_sigma", "must be >= 0")?;
         check(
-            d.blur_sigma_px.is_finite() && (0.0..=1.0).contains(&d.blur_sigma_px),
+            d.blur_sigma_px.is_finite() && (0.0..=DOWN_BLUR_MAX_PX).contains(&d.blur_sigma_px),
             "down_camera.blur_sigma_px",
-            "must lie in [0, 1]",
+            &format!("must lie in [0, {DOWN_BLUR_MAX_PX}] px"),
         )?;
         check(
             d.vignetting.is_finite() && (0.0..=0.9).contains(&d.vignetting),
@@ -197,9 +203,9 @@ impl Scenario {
             "must lie in [0, 0.5] m",
         )?;
         check(
-            m.physics_step_s.is_finite() && m.physics_step_s > 0.0 && m.physics_step_s <= 0.001,
+            m.physics_step_s.is_finite() && m.physics_step_s >= 1e-5 && m.physics_step_s <= 0.001,
             "model.physics_step_s",
-            "must lie in (0, 0.001] s",
+            "must lie in [1e-5, 0.001] s",
         )?;
         check(finite(&m.start_position_m), "model.start_position_m", "must be finite")?;
         check(
@@ -281,6 +287,19 @@ impl Scenario {
             mi.control_rate_hz >= 100.0 && mi.control_rate_hz <= i.rate_hz,
             "mission.control_rate_hz",
             "must lie in [100 Hz, imu.rate_hz]",
+        )?;
+        // A control step (its link message to a firmware in the loop and its log record) carries at most
+        // `MAX_IMU_PER_STEP` IMU samples: a slower control rate would lose samples.
+        let per_step = (i.rate_hz / mi.control_rate_hz).ceil() as usize;
+        check(
+            per_step <= flight_core::fil::MAX_IMU_PER_STEP,
+            "mission.control_rate_hz",
+            &format!(
+                "must be at least imu.rate_hz / {} = {} Hz (a control step carries at most {} IMU samples)",
+                flight_core::fil::MAX_IMU_PER_STEP,
+                i.rate_hz / flight_core::fil::MAX_IMU_PER_STEP as f64,
+                flight_core::fil::MAX_IMU_PER_STEP
+            ),
         )?;
         for (name, v) in [
             ("mission.arm_at_s", mi.arm_at_s),
