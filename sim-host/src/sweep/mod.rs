@@ -311,7 +311,7 @@ fn col(header: &[String], name: &str) -> usize {
     header.iter().position(|h| h == name).unwrap_or(usize::MAX)
 }
 
-fn get<'a>(r: &'a [String], i: usize) -> &'a str {
+fn get(r: &[String], i: usize) -> &str {
     r.get(i).map_or("", |s| s.as_str())
 }
 
