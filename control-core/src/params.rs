@@ -60,7 +60,7 @@ pub struct VehicleParams {
 }
 
 impl Default for VehicleParams {
-    /// The paper's 380 g X4, estimated from published parameter sets (see DESIGN.md).
+    /// The paper's 380 g X4, estimated from published parameter sets (see docs/architecture.md).
     fn default() -> Self {
         Self {
             mass_kg: 0.38,

@@ -88,6 +88,12 @@ mod tests {
         // Positive roll: right side down, thrust tilts to the vehicle's right (-x world when facing the wall).
         let thrust = Attitude::new(0.1, 0.0, 0.0).world_from_body() * Vec3::Z;
         assert!(thrust.x < 0.0 && thrust.y.abs() < 1e-7);
+        // docs/frames.md: facing the wall, the downward camera's image x (to the right) is world -x, its image y
+        // (down the image) world +y (away from the wall: the image's top is toward the nose), its axis world -z.
+        let r_wc = Attitude::new(0.0, 0.0, 0.0).world_from_body() * BODY_FROM_DOWN_CAMERA;
+        assert_eq!(r_wc * Vec3::X, Vec3::new(-1.0, 0.0, 0.0));
+        assert_eq!(r_wc * Vec3::Y, Vec3::new(0.0, 1.0, 0.0));
+        assert_eq!(r_wc * Vec3::Z, Vec3::new(0.0, 0.0, -1.0));
         let a = Attitude::new(0.05, -0.03, 0.2);
         let b = Attitude::from_world_from_body(&a.world_from_body());
         assert!(

@@ -135,15 +135,17 @@ pub fn analytic_flow(
     flow::stats_from_tracks(&tracks, gx * gy, camera, params, predicted_rotation_cam)
 }
 
-/// The JSON of one flow for the CLI: `{"status": "ok", "flow_px", "tracked", "quality", ["velocity_m_s"]}`.
-pub fn flow_json(s: &FlowStats, velocity_body: Option<[f32; 2]>) -> Value {
+/// The JSON of one flow for the CLI: `{"status": "ok", "flow_px", "tracked", "selected", "quality",
+/// "residual_px", ["velocity_m_s", "velocity_frame"]}`. `fx_px` is the camera's focal length in pixels: the
+/// fit's residual is computed in normalised image units and reported in pixels.
+pub fn flow_json(s: &FlowStats, fx_px: f32, velocity_body: Option<[f32; 2]>) -> Value {
     let mut v = json!({
         "status": "ok",
         "flow_px": [s.median_flow_px.x, s.median_flow_px.y],
         "tracked": s.inliers,
         "selected": s.selected,
         "quality": s.quality,
-        "residual_px": s.residual_rms,
+        "residual_px": s.residual_rms * fx_px,
     });
     if let Some(vel) = velocity_body {
         v["velocity_m_s"] = json!(vel);

@@ -336,7 +336,8 @@ impl Quadrotor {
         quat_to_mat(self.state.q)
     }
 
-    /// Total mechanical energy: translational and rotational kinetic, rotors' kinetic, potential (J).
+    /// Mechanical energy of the rigid body: translational and rotational kinetic, potential (J); the rotors'
+    /// own spin is not included.
     pub fn energy(&self) -> f64 {
         let s = &self.state;
         let p = &self.params;

@@ -13,7 +13,8 @@ use vision_core::AttitudeSource;
 
 #[derive(Subcommand, Debug)]
 pub(crate) enum VisionCommand {
-    /// Position of the vehicle from one forward-camera frame: prints one JSON object.
+    /// Pose of the forward camera (its centre and rotation in the wall's frame) from one frame: prints one JSON
+    /// object.
     Pose(PoseArgs),
     /// Optical flow between two downward-camera frames, and the velocity it gives: prints one JSON object.
     ///
@@ -185,7 +186,7 @@ pub(crate) fn vision_flow(a: &FlowArgs) -> Result<ExitCode> {
                 (None, None) => None,
                 _ => bail!("the velocity needs both --dt and --range"),
             };
-            println!("{}", flow_json(&stats, velocity));
+            println!("{}", flow_json(&stats, cam.fx, velocity));
             Ok(ExitCode::SUCCESS)
         }
         Err(why) => {
