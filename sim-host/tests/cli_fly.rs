@@ -172,3 +172,37 @@ fn fly_writes_a_log_that_replay_matches_bit_for_bit() {
     let r = bin().args(["import", "euroc", ".", "--out", "x.log", "--imu-axes", "x,x,z"]).output().unwrap();
     assert_eq!(r.status.code(), Some(1));
 }
+
+#[test]
+fn fly_keeps_no_camera_frames_in_its_log_unless_asked() {
+    // The default log holds the vision results, not the frames (a rendered flight with PNG frames writes about
+    // 17 MB per simulated second and flies several times slower).
+    let dir = std::env::temp_dir().join(format!("sim-host-frames-{}", std::process::id()));
+    let r = bin()
+        .args(["fly", "--camera", "rendered", "--duration", "1", "--no-plots", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let log = sim_host::flightlog::read_log(&dir.join("flight.log")).unwrap();
+    assert!(log.damage.is_empty());
+    let frames = log.records.iter().filter(|(_, r)| matches!(r, sim_host::flightlog::LogRecord::Frame(_))).count();
+    let vision = log
+        .records
+        .iter()
+        .filter(|(_, r)| matches!(r, sim_host::flightlog::LogRecord::Link(protocol::Uplink::Vision(_))))
+        .count();
+    assert_eq!(frames, 0);
+    assert!(vision >= 25, "{vision} vision results in 1 s at 30 Hz");
+    // Asked for, they are there.
+    let r = bin()
+        .args(["fly", "--camera", "rendered", "--duration", "1", "--no-plots", "--frames", "png", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let log = sim_host::flightlog::read_log(&dir.join("flight.log")).unwrap();
+    let frames = log.records.iter().filter(|(_, r)| matches!(r, sim_host::flightlog::LogRecord::Frame(_))).count();
+    assert!(frames >= 80, "{frames} frames (forward 30 Hz and downward 60 Hz)");
+    let _ = std::fs::remove_dir_all(&dir);
+}

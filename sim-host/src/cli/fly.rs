@@ -64,9 +64,10 @@ pub(crate) struct FlyArgs {
     /// Do not write the flight log (`flight.log`, for `sim-host replay` and `sim-host export`).
     #[arg(long)]
     pub(crate) no_log: bool,
-    /// Camera frames in the flight log: `png` (lossless), `raw` pixels, or `none` (only the vision results;
-    /// a far smaller log, replayable from vision results only). Only rendered cameras have frames.
-    #[arg(long, value_enum, default_value = "png")]
+    /// Camera frames in the flight log: `none` (the default: only the vision results, 0.2 MB per simulated
+    /// second, replayable from them), `png` (lossless, about 17 MB/s and several times slower: for `replay
+    /// --from-frames` and the images in `export`), or `raw` pixels. Only rendered cameras have frames.
+    #[arg(long, value_enum, default_value = "none")]
     pub(crate) frames: FramesArg,
     /// The flight computer: `sil` (the flight code in this process) or `qemu:PATH` (the firmware ELF built with
     /// `--features fil`, run in qemu-system-arm's netduinoplus2 model, in lockstep over its UART).
