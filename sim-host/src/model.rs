@@ -495,4 +495,110 @@ mod tests {
         }
         assert!(q.energy() < e0 - 1e-3);
     }
+
+    // Independent checks of the equations of motion, each able to catch a single planted error: a flipped or
+    // missing reaction or gyroscopic term, body rates integrated as world rates, thrust along world z, a wrong
+    // arm, motors of another speed, ignored limits, an accelerometer read in the world frame, no floor.
+
+    /// World-frame angular momentum of the body and its rotors (kg m^2/s).
+    fn angular_momentum_world(q: &Quadrotor) -> V3 {
+        let p = &q.params;
+        let s = &q.state;
+        let h: f64 = (0..4).map(|i| SPIN[i] as f64 * s.rotors[i]).sum::<f64>() * p.rotor_inertia;
+        let l_body = [p.inertia[0] * s.w[0], p.inertia[1] * s.w[1], p.inertia[2] * s.w[2] + h];
+        mat_vec(&q.rotation(), l_body)
+    }
+
+    #[test]
+    fn angular_momentum_is_conserved_without_external_torque() {
+        // No thrust or drag torque, an asymmetric body tumbling with its rotors spinning and spinning up: no
+        // external torque, so the world-frame angular momentum of body and rotors is constant. Catches the
+        // Euler term (omega x J omega) flipped or missing, the rotors' gyroscopic term flipped or missing, the
+        // motors' reaction flipped or missing, and body rates integrated as world rates.
+        let mut p = params();
+        p.k = 0.0;
+        p.k_tau = 0.0;
+        p.inertia = [3.0e-3, 4.5e-3, 7.1e-3];
+        let mut q = Quadrotor::new(p, [0.0, 0.0, 5.0], level());
+        q.state.w = [2.0, -1.0, 1.5];
+        q.state.rotors = [300.0, 600.0, 300.0, 600.0];
+        let l0 = angular_momentum_world(&q);
+        let norm = dot(l0, l0).sqrt();
+        // The clockwise rotors spin up to 800 rad/s over the run (a reaction torque on the body).
+        for _ in 0..1000 {
+            q.step(0.001, [800.0, 600.0, 800.0, 600.0]);
+        }
+        let l1 = angular_momentum_world(&q);
+        let d = add(l1, scale(l0, -1.0));
+        assert!(dot(d, d).sqrt() < 1e-7 * norm.max(1e-3), "{l0:?} -> {l1:?}");
+        assert!((q.state.rotors[0] - 800.0).abs() < 1.0, "the rotors did spin up: {:?}", q.state.rotors);
+    }
+
+    #[test]
+    fn thrust_acts_along_the_body_axis_and_torques_have_their_size() {
+        let p = params();
+        let wh = p.hover_speed();
+        // Rolled by 0.3 rad at hover thrust: the thrust tilts with the body.
+        let a: f64 = 0.3;
+        let s = State {
+            p: [0.0, 0.0, 1.0],
+            v: [0.0; 3],
+            q: [(a / 2.0).cos(), (a / 2.0).sin(), 0.0, 0.0],
+            w: [0.0; 3],
+            rotors: [wh; 4],
+        };
+        let d = derivative(&p, &s, s.rotors);
+        let t_over_m = 4.0 * p.k * wh * wh / p.mass_kg;
+        assert!((d.dv[1] + t_over_m * a.sin()).abs() < 1e-9, "{:?}", d.dv);
+        assert!((d.dv[2] - (t_over_m * a.cos() - p.gravity)).abs() < 1e-9, "{:?}", d.dv);
+        // Roll and pitch torques: arm times the thrust difference of the opposite pair ("+" frame), exactly.
+        let (w2, w4) = (wh + 40.0, wh - 40.0);
+        let s = State { q: level(), rotors: [wh, w2, wh, w4], ..s };
+        let d = derivative(&p, &s, s.rotors);
+        let expected = p.arm_m * p.k * (w2 * w2 - w4 * w4) / p.inertia[0];
+        assert!((d.dw[0] - expected).abs() < 1e-9 * expected, "{} vs {expected}", d.dw[0]);
+    }
+
+    #[test]
+    fn motors_follow_their_time_constant_and_limits() {
+        let p = params();
+        let mut q = Quadrotor::new(p, [0.0, 0.0, 50.0], level());
+        // A step from 0 to 500 rad/s: 63.2 % after one time constant.
+        let n = (p.motor_tau_s / 1e-4).round() as usize;
+        for _ in 0..n {
+            q.step(1e-4, [500.0; 4]);
+        }
+        let frac = q.state.rotors[0] / 500.0;
+        assert!((frac - (1.0 - (-1.0f64).exp())).abs() < 1e-3, "{frac}");
+        // A command beyond the limit settles at the limit.
+        for _ in 0..2000 {
+            q.step(1e-3, [5000.0; 4]);
+        }
+        assert!((q.state.rotors[0] - p.motor_limits[1]).abs() < 1e-6, "{:?}", q.state.rotors);
+    }
+
+    #[test]
+    fn the_accelerometer_reads_in_the_body_frame_and_the_floor_carries_the_vehicle() {
+        let p = params();
+        let wh = p.hover_speed();
+        // Rolled by 0.3 rad with hover thrust: the specific force is the thrust over the mass along body z.
+        let a: f64 = 0.3;
+        let mut q = Quadrotor::new(p, [0.0, 0.0, 10.0], [(a / 2.0).cos(), (a / 2.0).sin(), 0.0, 0.0]);
+        q.state.rotors = [wh; 4];
+        q.step(1e-4, [wh; 4]);
+        let f = q.specific_force_body();
+        let t_over_m = 4.0 * p.k * wh * wh / p.mass_kg;
+        assert!(f[0].abs() < 1e-6 && f[1].abs() < 1e-6, "{f:?}");
+        assert!((f[2] - t_over_m).abs() < 1e-6, "{f:?}");
+        // On a floor with the rotors stopped: it stays there, and the accelerometer reads +g up.
+        let mut p = params();
+        p.ground_height_m = Some(0.06);
+        let mut q = Quadrotor::new(p, [0.0, 0.0, 0.06], level());
+        for _ in 0..1000 {
+            q.step(0.001, [0.0; 4]);
+        }
+        assert!((q.state.p[2] - 0.06).abs() < 1e-12 && q.on_ground, "{:?}", q.state.p);
+        let f = q.specific_force_body();
+        assert!((f[2] - p.gravity).abs() < 1e-9, "{f:?}");
+    }
 }

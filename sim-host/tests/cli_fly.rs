@@ -186,7 +186,8 @@ fn fly_keeps_no_camera_frames_in_its_log_unless_asked() {
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let log = sim_host::flightlog::read_log(&dir.join("flight.log")).unwrap();
     assert!(log.damage.is_empty());
-    let frames = log.records.iter().filter(|(_, r)| matches!(r, sim_host::flightlog::LogRecord::Frame(_))).count();
+    let frames =
+        log.records.iter().filter(|(_, r)| matches!(r, sim_host::flightlog::LogRecord::Frame(_))).count();
     let vision = log
         .records
         .iter()
@@ -202,7 +203,8 @@ fn fly_keeps_no_camera_frames_in_its_log_unless_asked() {
         .unwrap();
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let log = sim_host::flightlog::read_log(&dir.join("flight.log")).unwrap();
-    let frames = log.records.iter().filter(|(_, r)| matches!(r, sim_host::flightlog::LogRecord::Frame(_))).count();
+    let frames =
+        log.records.iter().filter(|(_, r)| matches!(r, sim_host::flightlog::LogRecord::Frame(_))).count();
     assert!(frames >= 80, "{frames} frames (forward 30 Hz and downward 60 Hz)");
     let _ = std::fs::remove_dir_all(&dir);
 }
