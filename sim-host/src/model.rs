@@ -471,7 +471,9 @@ mod tests {
 
     #[test]
     fn energy_is_conserved_with_drag_off() {
-        // No aerodynamic forces, rotors spinning (gyroscopic coupling active): kinetic + potential constant.
+        // No aerodynamic forces: kinetic + potential constant. (The gyroscopic and Euler torques, of the form
+        // omega x a, do no work: this test cannot see them; `angular_momentum_is_conserved_without_external_torque`
+        // does.)
         let mut p = params();
         p.k = 0.0;
         p.k_tau = 0.0;
