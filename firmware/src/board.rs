@@ -96,6 +96,8 @@ pub struct RunStats {
     pub sum_background: u64,
     /// IMU reads that failed.
     pub imu_errors: u32,
+    /// IMU samples dropped, oldest first, because the step fell behind and more than a step holds arrived.
+    pub imu_dropped: u32,
     /// Motor command writes that failed.
     pub motor_errors: u32,
     /// Link messages dropped because more than a step's worth arrived.
@@ -500,11 +502,12 @@ mod variant {
             let (used, room) = stack_used();
             cortex_m_semihosting::hprintln!("stack: used={} of {} bytes, free={}", used, room, room - used);
             cortex_m_semihosting::hprintln!(
-                "loop ran: steps={} ticks={} imu_errors={} motor_errors={} step_cycles_max={} step_cycles_mean={} background_cycles_max={} background_cycles_total={} mode={:?} link_ok={} link_errors={}",
+                "loop ran: steps={} ticks={} imu_errors={} motor_errors={} imu_dropped={} step_cycles_max={} step_cycles_mean={} background_cycles_max={} background_cycles_total={} mode={:?} link_ok={} link_errors={}",
                 s.steps,
                 self.last_tick,
                 s.imu_errors,
                 s.motor_errors,
+                s.imu_dropped,
                 s.max_cost,
                 s.sum_cost / s.steps.max(1) as u64,
                 s.max_background,

@@ -77,10 +77,12 @@ fn run(board: &mut board::Board, stack: &mut FlightStack, cfg: &FlightConfig) ->
         let time_us = tick as u64 * 1000;
         match board.read_imu(time_us) {
             Some(s) => {
-                // Keep the newest samples if the step fell behind.
+                // Keep the newest samples if the step fell behind, and count the one given up.
                 if imu.is_full() {
                     imu.remove(0);
+                    stats.imu_dropped += 1;
                 }
+                // Cannot fail: a place was made above.
                 let _ = imu.push(s);
             }
             None => stats.imu_errors += 1,
