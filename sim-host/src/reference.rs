@@ -7,6 +7,10 @@
 //!   the offset at the first compared sample.
 //! - Each reference is compared with the estimate interpolated (normalised linear interpolation of the
 //!   quaternions) between the two control steps around its time.
+//! - Comparisons start at the flight code's first attitude: it integrates an IMU sample when the next one
+//!   arrives (its spike filter looks one sample ahead), so the references before the step of the second
+//!   sample are counted (`not_compared_before_first_attitude`) and compared for neither filter. (A recording
+//!   whose reference starts before its IMU, as PX4's logs can, would otherwise score the level initial state.)
 //! - Segments: the whole log; where the reference says whether the vehicle flew (a land detector), the
 //!   airborne and the grounded samples; else, where the reference has positions, the longest stretch in
 //!   which it stood still (speed below 0.05 m/s for 2 s or more) and the flight after it (from take-off to
@@ -179,6 +183,14 @@ pub struct ReferenceScore {
     prev: Option<(u64, Quat, Quat)>,
     samples: Vec<Sample>,
     yaw_offset: Option<[f64; 2]>,
+    /// IMU samples seen so far.
+    imu_seen: usize,
+    /// The first step after which the flight code had an attitude from the IMU: it integrates a sample when
+    /// the next one arrives (its spike filter looks one sample ahead), so from the second sample's step.
+    first_attitude_us: Option<u64>,
+    /// Reference states before it (not compared: neither filter is scored before the flight code has an
+    /// attitude).
+    before_first_attitude: usize,
 }
 
 impl ReferenceScore {
@@ -193,6 +205,9 @@ impl ReferenceScore {
             prev: None,
             samples: Vec::new(),
             yaw_offset: None,
+            imu_seen: 0,
+            first_attitude_us: None,
+            before_first_attitude: 0,
         }
     }
 
@@ -216,6 +231,18 @@ impl ReferenceScore {
         }
         for s in imu {
             self.mahony.update(s);
+        }
+        self.imu_seen += imu.len();
+        if self.first_attitude_us.is_none() {
+            if self.imu_seen < 2 {
+                return;
+            }
+            self.first_attitude_us = Some(time_us);
+            // Everything before this step is from before the flight code's first attitude.
+            while self.pending.front().is_some_and(|r| r.time_us < time_us) {
+                self.pending.pop_front();
+                self.before_first_attitude += 1;
+            }
         }
         let now = (time_us, *estimate, self.mahony.q);
         while let Some(r) = self.pending.front().copied() {
@@ -335,6 +362,7 @@ impl ReferenceScore {
             "reference": self.what,
             "yaw": if self.yaw_absolute { "absolute" } else { "relative: the offset at the first sample removed" },
             "samples": self.samples.len(),
+            "not_compared_before_first_attitude": self.before_first_attitude,
             "attitude_rms_error_deg": whole["attitude_rms_error_deg"],
             "attitude_max_error_deg": whole["attitude_max_error_deg"],
             "mahony": {
@@ -365,10 +393,13 @@ mod tests {
                 airborne: Some(k > 50),
             };
             s.reference(&r);
-            s.step(k * 1000, &[], None, &ours, true);
+            let imu = ImuSample { time_us: k * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: [0.0, 0.0, 9.81] };
+            s.step(k * 1000, &[imu], None, &ours, true);
         }
         let j = s.json();
-        assert_eq!(j["samples"], 100);
+        // The first reference comes before the flight code's first attitude (its second IMU sample).
+        assert_eq!(j["not_compared_before_first_attitude"], 1);
+        assert_eq!(j["samples"], 99);
         assert!((j["attitude_rms_error_deg"]["roll"].as_f64().unwrap() - 2.0).abs() < 1e-3, "{j}");
         assert!(j["attitude_rms_error_deg"]["yaw"].as_f64().unwrap() < 1e-3, "{j}");
         let names: Vec<&str> =
