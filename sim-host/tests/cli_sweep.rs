@@ -110,6 +110,13 @@ fn shards_merged_equal_the_whole_sweep_byte_for_byte() {
         bin().args(["sweep", "merge"]).args(&shards[..3]).arg("--out").arg(tmp("partial")).output().unwrap();
     assert_eq!(r.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&r.stderr).contains("missing"), "{}", String::from_utf8_lossy(&r.stderr));
+    // A shard given twice: its runs would be in the merge twice; refused, naming both (it used to be dropped
+    // silently).
+    let twice: Vec<&std::path::PathBuf> = shards.iter().chain([&shards[0]]).collect();
+    let r = bin().args(["sweep", "merge"]).args(&twice).arg("--out").arg(tmp("twice")).output().unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(err.contains("is in two shards"), "{err}");
 
     // A run alone: `fly --vary --run K --seed S` flies the very run the sweep flew.
     let row: Vec<&str> = csv.lines().nth(3).unwrap().split(',').collect();

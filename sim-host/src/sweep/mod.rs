@@ -246,6 +246,8 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<SweepResult> {
     let mut rows: Vec<Vec<String>> = Vec::new();
     let mut meta0: Option<Value> = None;
     let mut shards_seen = Vec::new();
+    // Which shard each run came from.
+    let mut from: std::collections::HashMap<u64, PathBuf> = std::collections::HashMap::new();
     for d in dirs {
         let m: Value = serde_json::from_str(
             &std::fs::read_to_string(d.join("sweep.json"))
@@ -263,18 +265,28 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<SweepResult> {
         let text = std::fs::read_to_string(d.join("runs.csv"))
             .with_context(|| format!("{}: no runs.csv", d.display()))?;
         let mut lines = text.lines();
-        let h = parse_csv_line(lines.next().unwrap_or_default());
+        let Some(first) = lines.next() else { bail!("{}/runs.csv: empty (not even a header)", d.display()) };
+        let h = parse_csv_line(first);
         match &header {
             None => header = Some(h),
             Some(h0) if *h0 != h => bail!("{}/runs.csv: other columns", d.display()),
             _ => {}
         }
-        rows.extend(lines.filter(|l| !l.is_empty()).map(parse_csv_line));
+        for (n, line) in lines.enumerate().filter(|(_, l)| !l.is_empty()) {
+            let row = parse_csv_line(line);
+            let Some(k) = row.first().and_then(|k| k.parse::<u64>().ok()) else {
+                bail!("{}/runs.csv line {}: no run index in the first column", d.display(), n + 2);
+            };
+            if let Some(other) = from.insert(k, d.clone()) {
+                bail!("run {k} is in two shards: {} and {}", other.display(), d.display());
+            }
+            rows.push(row);
+        }
     }
     let mut meta = meta0.unwrap_or(Value::Null);
     let total = meta["runs"].as_u64().unwrap_or(0);
+    // Every row has a run index (checked above) and no index is there twice.
     rows.sort_by_key(|r| r.first().and_then(|k| k.parse::<u64>().ok()).unwrap_or(u64::MAX));
-    rows.dedup_by(|a, b| a.first() == b.first());
     let have: Vec<u64> = rows.iter().filter_map(|r| r.first()?.parse().ok()).collect();
     if have.len() as u64 != total || have.iter().enumerate().any(|(i, k)| *k != i as u64) {
         let missing: Vec<u64> = (0..total).filter(|k| !have.contains(k)).take(10).collect();
@@ -286,7 +298,8 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<SweepResult> {
     if let Some(o) = meta.as_object_mut() {
         o.insert("shard".into(), json!({"index": 1, "count": 1}));
     }
-    write_outputs(out, &header.unwrap_or_default(), &rows, &meta)
+    let Some(header) = header else { bail!("nothing to merge: no shard had a runs.csv") };
+    write_outputs(out, &header, &rows, &meta)
 }
 
 fn write_outputs(out: &Path, header: &[String], rows: &[Vec<String>], meta: &Value) -> Result<SweepResult> {
