@@ -92,17 +92,40 @@ impl VehicleParams {
         torque / self.inertia_kg_m2[0].max(self.inertia_kg_m2[1])
     }
 
+    /// The ranges are those of multirotors from a 50 g micro to a 20 kg heavy lifter: a value outside is a
+    /// typing or unit error (1e-30 kg m^2 of inertia, a thrust coefficient in the wrong unit), not a vehicle.
     fn validate(&self) -> Result<(), ParamError> {
-        positive(self.mass_kg, "vehicle.mass_kg")?;
-        positive(self.arm_length_m, "vehicle.arm_length_m")?;
+        let within = |v: f32, lo: f32, hi: f32, field: &'static str, problem: &'static str| {
+            check(v.is_finite() && v >= lo && v <= hi, field, problem)
+        };
+        within(self.mass_kg, 0.05, 20.0, "vehicle.mass_kg", "must lie in [0.05, 20] kg")?;
+        within(self.arm_length_m, 0.03, 1.5, "vehicle.arm_length_m", "must lie in [0.03, 1.5] m")?;
         for &i in &self.inertia_kg_m2 {
-            positive(i, "vehicle.inertia_kg_m2")?;
+            within(i, 1e-5, 10.0, "vehicle.inertia_kg_m2", "each must lie in [1e-5, 10] kg m^2")?;
         }
-        positive(self.thrust_coeff, "vehicle.thrust_coeff")?;
-        positive(self.drag_torque_coeff, "vehicle.drag_torque_coeff")?;
-        non_negative(self.rotor_inertia_kg_m2, "vehicle.rotor_inertia_kg_m2")?;
+        within(self.thrust_coeff, 1e-9, 1e-3, "vehicle.thrust_coeff", "must lie in [1e-9, 1e-3] N s^2")?;
+        within(
+            self.drag_torque_coeff,
+            1e-11,
+            1e-4,
+            "vehicle.drag_torque_coeff",
+            "must lie in [1e-11, 1e-4] N m s^2",
+        )?;
+        within(
+            self.rotor_inertia_kg_m2,
+            0.0,
+            1e-2,
+            "vehicle.rotor_inertia_kg_m2",
+            "must lie in [0, 1e-2] kg m^2",
+        )?;
         non_negative(self.motor_speed_min_rad_s, "vehicle.motor_speed_min_rad_s")?;
-        positive(self.motor_speed_max_rad_s, "vehicle.motor_speed_max_rad_s")?;
+        within(
+            self.motor_speed_max_rad_s,
+            10.0,
+            1e4,
+            "vehicle.motor_speed_max_rad_s",
+            "must lie in [10, 1e4] rad/s",
+        )?;
         check(
             self.motor_speed_max_rad_s > self.motor_speed_min_rad_s,
             "vehicle.motor_speed_max_rad_s",

@@ -639,6 +639,21 @@ mod tests {
         // Four samples per step still fit.
         let ok = text.replace("control_rate_hz = 500.0", "control_rate_hz = 250.0");
         Scenario::from_toml(&ok).unwrap();
+        // Absurd vehicles: a typing or unit error, refused by name (they used to crash the simulated vehicle).
+        for (from, to, field) in [
+            (
+                "inertia_kg_m2 = [3.9e-3, 3.9e-3, 7.1e-3]",
+                "inertia_kg_m2 = [1e-30, 3.9e-3, 7.1e-3]",
+                "vehicle.inertia_kg_m2",
+            ),
+            ("motor_time_constant_s = 0.02", "motor_time_constant_s = 1e-30", "model.motor_time_constant_s"),
+            ("mass_kg = 0.38", "mass_kg = 3800.0", "vehicle.mass_kg"),
+            ("thrust_coeff = 2.98e-6", "thrust_coeff = 2.98", "vehicle.thrust_coeff"),
+        ] {
+            assert!(text.contains(from), "{from}");
+            let e = format!("{:#}", Scenario::from_toml(&text.replace(from, to)).unwrap_err());
+            assert!(e.contains(field), "{to}: {e}");
+        }
         // A physics step that would divide by (almost) zero.
         let tiny = text.replace("physics_step_s = 0.001", "physics_step_s = 1e-30");
         let e = format!("{:#}", Scenario::from_toml(&tiny).unwrap_err());

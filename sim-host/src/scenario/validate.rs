@@ -182,9 +182,16 @@ impl Scenario {
         )?;
         let m = &self.model;
         check(
-            m.motor_time_constant_s.is_finite() && m.motor_time_constant_s > 0.0,
+            m.motor_time_constant_s.is_finite() && (1e-3..=1.0).contains(&m.motor_time_constant_s),
             "model.motor_time_constant_s",
-            "must be positive",
+            "must lie in [0.001, 1] s",
+        )?;
+        // The motors' decay must be resolved by the integrator (RK4 is stable for h / tau below 2.78; one
+        // physics step per time constant keeps a margin), also for the simulated vehicle's mismatched motors.
+        check(
+            m.motor_time_constant_s * self.mismatch.motor_time_constant_scale >= m.physics_step_s,
+            "model.motor_time_constant_s",
+            "times mismatch.motor_time_constant_scale must be at least model.physics_step_s",
         )?;
         check(
             m.linear_drag_n_s_per_m.is_finite() && m.linear_drag_n_s_per_m >= 0.0,
