@@ -5,7 +5,7 @@
 /// Vertex capacity of a [`Poly`] (a 32-gon plus the vertices that clipping adds).
 const CAP: usize = 40;
 
-/// A small convex polygon with at most [`CAP`] vertices.
+/// A small convex polygon with at most 40 vertices (a 32-gon plus the vertices that clipping adds).
 #[derive(Clone, Copy, Debug)]
 pub struct Poly {
     pts: [[f64; 2]; CAP],
