@@ -180,7 +180,8 @@ pub struct ReferenceScore {
     yaw_absolute: bool,
     mahony: Mahony,
     pending: std::collections::VecDeque<ReferenceState>,
-    prev: Option<(u64, Quat, Quat)>,
+    /// The previous step: time, our attitude, Mahony's, and whether ours had a heading.
+    prev: Option<(u64, Quat, Quat, bool)>,
     samples: Vec<Sample>,
     yaw_offset: Option<[f64; 2]>,
     /// IMU samples seen so far.
@@ -244,7 +245,8 @@ impl ReferenceScore {
                 self.before_first_attitude += 1;
             }
         }
-        let now = (time_us, *estimate, self.mahony.q);
+        let yaw_known = yaw_known || !self.yaw_absolute;
+        let now = (time_us, *estimate, self.mahony.q, yaw_known);
         while let Some(r) = self.pending.front().copied() {
             if r.time_us > time_us {
                 break;
@@ -252,17 +254,19 @@ impl ReferenceScore {
             self.pending.pop_front();
             // Between the previous step and this one.
             let (ours, mahony) = match self.prev {
-                Some((t0, q0, m0)) if r.time_us >= t0 && time_us > t0 => {
+                Some((t0, q0, m0, known0)) if r.time_us >= t0 && time_us > t0 => {
                     let f = (r.time_us - t0) as f32 / (time_us - t0) as f32;
-                    (nlerp(&q0, estimate, f), nlerp(&m0, &self.mahony.q, f))
+                    // Not across the heading's first fix: the attitude before it has no heading, and a
+                    // blend of the two would be scored as a heading error of up to the whole correction.
+                    let ours = if known0 == yaw_known { nlerp(&q0, estimate, f) } else { *estimate };
+                    (ours, nlerp(&m0, &self.mahony.q, f))
                 }
-                Some((t0, _, _)) if r.time_us < t0 => continue,
+                Some((t0, _, _, _)) if r.time_us < t0 => continue,
                 _ => (*estimate, self.mahony.q),
             };
             let [w, x, y, z] = r.q_world_body;
             let truth = angles(&Quat { w, x, y, z });
             let (a, m) = (angles(&ours), angles(&mahony));
-            let yaw_known = yaw_known || !self.yaw_absolute;
             let off = *self.yaw_offset.get_or_insert([wrap180(a[2] - truth[2]), wrap180(m[2] - truth[2])]);
             let err = |e: [f64; 3], k: usize| {
                 let yaw = if self.yaw_absolute { e[2] - truth[2] } else { e[2] - truth[2] - off[k] };
@@ -424,5 +428,32 @@ mod tests {
         let a = Attitude::from_world_from_body(&m.q.to_mat3());
         assert!((a.roll - truth.roll).abs() < 0.05f32.to_radians(), "{}", a.roll.to_degrees());
         assert!((m.bias - Vec3::new(0.01, -0.005, 0.0)).norm() < 1e-3, "{:?}", m.bias);
+    }
+
+    #[test]
+    fn no_heading_error_is_scored_across_the_first_heading_fix() {
+        // Absolute yaw: the truth heads 90 deg; our heading is unknown (0) until the step at 20 ms, then right.
+        // References every millisecond, steps every 10 ms: the references between 10 and 20 ms must be scored
+        // against the attitude with the heading, not a blend of before and after.
+        let truth = Quat::from_mat3(&Attitude::new(0.0, 0.0, 90f32.to_radians()).world_from_body());
+        let level = Quat::from_mat3(&Attitude::new(0.0, 0.0, 0.0).world_from_body());
+        let mut s = ReferenceScore::new("test", true, [1.0, 0.0, 0.0]);
+        for ms in 1..=40u64 {
+            s.reference(&ReferenceState {
+                time_us: ms * 1000,
+                q_world_body: [truth.w, truth.x, truth.y, truth.z],
+                position_m: None,
+                airborne: None,
+            });
+            if ms % 10 == 0 {
+                let imu = ImuSample { time_us: ms * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: [0.0, 0.0, 9.81] };
+                let known = ms >= 20;
+                s.step(ms * 1000, &[imu, imu], None, if known { &truth } else { &level }, known);
+            }
+        }
+        let j = s.json();
+        assert!(j["attitude_max_error_deg"]["yaw"].as_f64().unwrap() < 1e-3, "{j}");
+        // From the first step with an attitude (10 ms) on; those before the fix in roll and pitch only.
+        assert_eq!(j["samples"], 31);
     }
 }

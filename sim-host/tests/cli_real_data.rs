@@ -140,6 +140,44 @@ fn the_other_px4_ulogs_import_and_replay() {
 }
 
 #[test]
+fn a_simulators_log_is_scored_against_its_truth_unless_told_otherwise() {
+    let Some(data) = shared_data() else { return };
+    let dir = tmp("reference-choice");
+    let sitl = data.join("px4-ulog/sample_logging_tagged_and_default_params.ulg");
+    let import = |file: &Path, extra: &[&str], log: &str| {
+        bin().args(["import", "ulog"]).arg(file).arg("--out").arg(dir.join(log)).args(extra).output().unwrap()
+    };
+    let header = |log: &str| {
+        let summary = dir.join(format!("{log}.json"));
+        let r = bin().arg("replay").arg(dir.join(log)).arg("--summary").arg(&summary).output().unwrap();
+        assert_eq!(r.status.code(), Some(0), "{}", String::from_utf8_lossy(&r.stderr));
+        let s: Value = serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+        s["reference"].as_str().unwrap().to_string()
+    };
+    // PX4's simulator logs its truth (vehicle_attitude_groundtruth, timestamp_sample left 0): that is the
+    // reference by default, at the message's timestamp.
+    let r = import(&sitl, &[], "auto.log");
+    assert_eq!(r.status.code(), Some(0), "{}", String::from_utf8_lossy(&r.stderr));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("vehicle_attitude_groundtruth") && err.contains(" 1077 reference states"), "{err}");
+    let r = import(&sitl, &["--reference", "estimator"], "ekf.log");
+    assert_eq!(r.status.code(), Some(0));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains(" 1730 reference states"), "{err}");
+    let (auto, ekf) = (header("auto.log"), header("ekf.log"));
+    assert!(auto.contains("vehicle_attitude_groundtruth (the simulator's truth)"), "{auto}");
+    assert!(ekf.contains("PX4 vehicle_attitude (") && !ekf.contains("groundtruth"), "{ekf}");
+    // A real board's log has no truth: asking for it is refused, naming the topic and the file.
+    let real = data.join("px4-ulog/sample.ulg");
+    let r = import(&real, &["--reference", "truth"], "truth.log");
+    assert_eq!(r.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("vehicle_attitude_groundtruth") && err.contains("sample.ulg"), "{err}");
+    assert!(!dir.join("truth.log").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn imports_refuse_bad_windows_and_their_own_input() {
     let Some(data) = shared_data() else { return };
     let ulg = data.join("px4-ulog/sample.ulg");

@@ -264,6 +264,11 @@ impl Estimator {
         if !field_body.is_finite() {
             return FuseOutcome::Invalid;
         }
+        if !self.tilt_aligned {
+            // Levelling the field needs the tilt: before the accelerometer's first block the attitude is
+            // the starting guess, and a heading from it would be off by degrees on a tilted pad.
+            return FuseOutcome::Stale;
+        }
         let r = self.q.to_mat3();
         let m_w = r.mul_vec(field_body);
         let b = self.params.mag_field_world;

@@ -374,3 +374,26 @@ fn consistent_refusals_reset_the_position_to_vision() {
     e.propagate_covariance(t);
     assert_eq!(e.fuse_fix(&hover_fix(t - 20_000, truth), t), FuseOutcome::Accepted);
 }
+
+#[test]
+fn the_compass_sets_the_heading_only_once_the_tilt_is_known() {
+    // Resting tilted (15 deg roll, -10 deg pitch) with a heading of 30 deg. A compass reading before the
+    // first accelerometer block would be levelled with the starting (level) attitude, and the heading
+    // it gives would be off by degrees; it must wait for the tilt.
+    let truth = Attitude::new(15f32.to_radians(), -10f32.to_radians(), 30f32.to_radians());
+    let r = truth.world_from_body();
+    let f = r.tmul_vec(Vec3::new(0.0, 0.0, GRAVITY));
+    let params = EstimatorParams::default();
+    let b = params.mag_field_world;
+    let m_body = r.tmul_vec(Vec3::new(b[0], b[1], b[2]));
+    let mut e = Estimator::new(params, Vec3::ZERO);
+    e.predict(&ImuSample { time_us: 1000, gyro_rad_s: [0.0; 3], accel_m_s2: f.to_array() });
+    assert_eq!(e.fuse_mag(m_body), FuseOutcome::Stale);
+    assert!(!e.yaw_initialised());
+    for k in 2..=60u64 {
+        e.predict(&ImuSample { time_us: k * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: f.to_array() });
+    }
+    assert_eq!(e.fuse_mag(m_body), FuseOutcome::Initialised);
+    let s = e.estimate(60_000);
+    assert!((s.attitude.yaw - truth.yaw).abs() < 0.1f32.to_radians(), "yaw {}", s.attitude.yaw.to_degrees());
+}

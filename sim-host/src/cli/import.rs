@@ -15,8 +15,9 @@ pub(crate) enum ImportCommand {
     /// cam0/data.csv with cam0/data/*.png and cam0/sensor.yaml for the camera's intrinsics. Without a camera
     /// or a magnetometer yaw is unobservable, and the import says so.
     Euroc(EurocArgs),
-    /// A PX4 ULog file: the IMU (sensor_combined), the magnetometer, the landed and armed state, and PX4's
-    /// attitude estimate (vehicle_attitude) as the reference; PX4's FRD/NED frames converted to FLU/ENU.
+    /// A PX4 ULog file: the IMU (sensor_combined), the magnetometer, the landed and armed state, and an
+    /// attitude as the reference (the simulator's truth in a software-in-the-loop log, else PX4's estimate
+    /// vehicle_attitude; see --reference); PX4's FRD/NED frames converted to FLU/ENU.
     Ulog(UlogArgs),
 }
 
@@ -77,6 +78,10 @@ pub(crate) struct UlogArgs {
     /// The scenario whose flight parameters the replay uses.
     #[arg(long, default_value = "paper")]
     pub(crate) scenario: String,
+    /// The attitude the replay is scored against: `auto` takes vehicle_attitude_groundtruth when the log
+    /// has it (PX4's simulators write it), else vehicle_attitude (PX4's EKF2).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub(crate) reference: sim_host::import::ReferenceChoice,
     #[command(flatten)]
     pub(crate) window: WindowArgs,
 }
@@ -183,6 +188,7 @@ pub(crate) fn import_ulog(a: &UlogArgs) -> Result<ExitCode> {
         file: a.file.clone(),
         scenario: Scenario::load(&a.scenario)?,
         window: a.window.window()?,
+        reference: a.reference,
     };
     let bar = progress_bar(1000, "{spinner} importing [{bar:40}] ({elapsed} elapsed)");
     let s = sim_host::import::import_ulog(&opts, &a.out, |f| bar.set_position((f * 1000.0) as u64))?;

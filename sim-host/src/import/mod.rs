@@ -25,7 +25,7 @@ use flight_core::fil::{MAX_IMU_PER_STEP, SensorStep};
 use geometry::Vec3;
 
 pub use euroc::{EUROC_IMU_TO_BODY, EurocOptions, import_euroc};
-pub use ulog::{UlogOptions, import_ulog};
+pub use ulog::{ReferenceChoice, UlogOptions, import_ulog};
 
 /// The gyro-bias random walk the flight code assumes for a recorded IMU (rad/s per sqrt(s)), unless the
 /// scenario sets its own.

@@ -10,7 +10,9 @@
 //!   `magnetometer_ga`;
 //! - the vehicle's state: `vehicle_land_detected` (`landed`) and `vehicle_status` (`arming_state`, 2 =
 //!   armed): a disarmed vehicle is not flying;
-//! - the reference: `vehicle_attitude` (`q`, PX4's estimate, EKF2), at `timestamp_sample` when logged;
+//! - the reference: by default the simulator's truth `vehicle_attitude_groundtruth` when the log has it (a
+//!   software-in-the-loop log), else `vehicle_attitude` (`q`, PX4's own estimate, EKF2), at
+//!   `timestamp_sample` when logged and set, else `timestamp` ([`ReferenceChoice`]);
 //! - the parameter `EKF2_MAG_DECL` (deg): the magnetic declination, which sets the world's magnetic field
 //!   direction for the flight code's heading.
 //!
@@ -39,6 +41,22 @@ pub struct UlogOptions {
     pub scenario: Scenario,
     /// The window to import.
     pub window: Window,
+    /// Which attitude the log keeps as the reference.
+    pub reference: ReferenceChoice,
+}
+
+/// Which of the log's attitudes is the reference the replay is scored against.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(clap::ValueEnum)]
+pub enum ReferenceChoice {
+    /// The truth when the log has one (`vehicle_attitude_groundtruth`, written by PX4's simulators), else
+    /// PX4's estimate.
+    #[default]
+    Auto,
+    /// `vehicle_attitude_groundtruth` (refused when the log has none).
+    Truth,
+    /// `vehicle_attitude`: PX4's own estimate (EKF2).
+    Estimator,
 }
 
 /// A field as numbers (a scalar gives one), by name.
@@ -102,6 +120,7 @@ struct Raw {
     land: Vec<(u64, bool)>,
     armed: Vec<(u64, bool)>,
     attitude: Vec<(u64, [f32; 4])>,
+    attitude_truth: Vec<(u64, [f32; 4])>,
     declination_deg: Option<f64>,
     data_messages: u64,
 }
@@ -136,7 +155,8 @@ fn read_raw(path: &Path) -> Result<Raw> {
                 }
                 let f = &d.data;
                 let t = d.timestamp;
-                let t_sample = scalar(f, "timestamp_sample").map_or(t, |v| v as u64);
+                // `timestamp_sample` when set (PX4's simulator leaves it 0 in its ground-truth topics).
+                let t_sample = scalar(f, "timestamp_sample").filter(|v| *v > 0.0).map_or(t, |v| v as u64);
                 match name.as_str() {
                     "sensor_combined" => {
                         if let (Some(g), Some(a)) = (vec3(f, "gyro_rad"), vec3(f, "accelerometer_m_s2")) {
@@ -176,12 +196,16 @@ fn read_raw(path: &Path) -> Result<Raw> {
                             raw.armed.push((t, a == 2.0));
                         }
                     }
-                    "vehicle_attitude" => {
+                    "vehicle_attitude" | "vehicle_attitude_groundtruth" => {
                         if let Some(q) = field(f, "q")
                             && q.len() == 4
                         {
-                            raw.attitude
-                                .push((t_sample, [q[0] as f32, q[1] as f32, q[2] as f32, q[3] as f32]));
+                            let q = (t_sample, [q[0] as f32, q[1] as f32, q[2] as f32, q[3] as f32]);
+                            if name == "vehicle_attitude" {
+                                raw.attitude.push(q);
+                            } else {
+                                raw.attitude_truth.push(q);
+                            }
                         }
                     }
                     _ => {}
@@ -262,9 +286,25 @@ pub fn import_ulog(opts: &UlogOptions, out: &Path, progress: impl FnMut(f64)) ->
     data.mag = mag.iter().map(|(t, m)| (*t, Vec3::from_array(*m))).collect();
     let lands = land_states(&raw);
     sort_dedup(&mut raw.attitude);
+    sort_dedup(&mut raw.attitude_truth);
+    let truth = match opts.reference {
+        ReferenceChoice::Truth if raw.attitude_truth.is_empty() => bail!(
+            "{}: --reference truth, but the log has no vehicle_attitude_groundtruth (only PX4's simulators \
+             write it)",
+            opts.file.display()
+        ),
+        ReferenceChoice::Estimator => false,
+        _ => !raw.attitude_truth.is_empty(),
+    };
+    if truth && !raw.attitude.is_empty() {
+        notes.push(
+            "reference: the simulator's truth (vehicle_attitude_groundtruth); --reference estimator for PX4's EKF2"
+                .into(),
+        );
+    }
+    let attitude = if truth { &raw.attitude_truth } else { &raw.attitude };
     let land_at = |t: u64| lands.iter().take_while(|(u, _)| *u <= t).last().and_then(|(_, s)| *s);
-    data.reference = raw
-        .attitude
+    data.reference = attitude
         .iter()
         .map(|(t, q)| {
             let q = world_from_body(*q);
@@ -302,6 +342,8 @@ pub fn import_ulog(opts: &UlogOptions, out: &Path, progress: impl FnMut(f64)) ->
         format!("ulog:{}", opts.file.display()),
         if data.reference.is_empty() {
             String::new()
+        } else if truth {
+            "PX4 vehicle_attitude_groundtruth (the simulator's truth)".into()
         } else {
             "PX4 vehicle_attitude (the recording's own estimator: EKF2, or attitude_estimator_q in older logs)".into()
         },
