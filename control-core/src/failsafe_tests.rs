@@ -17,6 +17,9 @@ struct Harness {
     imu_nan: bool,
     vision_on: bool,
     link_on: bool,
+    /// The vehicle brings its estimate, not its true position, to the setpoint (as the closed loop does: an
+    /// estimate's error becomes the vehicle's).
+    tracks_estimate: bool,
     out: Option<ControlOutputs>,
     /// The accelerometer's filter state.
     accel_lp: Vec3,
@@ -41,6 +44,7 @@ impl Harness {
             imu_nan: false,
             vision_on: true,
             link_on: true,
+            tracks_estimate: false,
             out: None,
             accel_lp: Vec3::new(0.0, 0.0, GRAVITY),
             trail: [home; 32],
@@ -54,7 +58,10 @@ impl Harness {
     /// One 2 ms control period; `cmd` is delivered with it.
     fn step(&mut self, cmd: Option<Command>) -> ControlOutputs {
         let mut imu = [ImuSample::default(); 2];
-        let sp = self.out.map(|o| o.setpoint.position_m);
+        let offset = |o: &ControlOutputs| {
+            if self.tracks_estimate { self.p - o.estimate.position_m } else { Vec3::ZERO }
+        };
+        let sp = self.out.map(|o| o.setpoint.position_m + offset(&o));
         let airborne =
             self.out.is_some_and(|o| o.status.mode.airborne() && o.motors_rad_s.iter().any(|w| *w > 0.0));
         let mut acc;
@@ -249,6 +256,38 @@ fn vision_back_during_a_sweep_resumes_it_from_where_the_vehicle_is() {
     assert!((out.setpoint.position_m.x - x_held).abs() < 0.05, "{} {x_held}", out.setpoint.position_m.x);
     h.run(2.0);
     assert!(h.p.x > x_held + 0.2, "moving on: {} from {x_held}", h.p.x);
+}
+
+#[test]
+fn a_landing_descends_from_the_height_vision_gives_when_it_returns() {
+    // Landing blind, the height estimate drifts below the vehicle (an accelerometer bias) and the loop
+    // brings the estimate, not the vehicle, down; vision returns, and its first fix moves the estimate back at once (accepted, no reset: the dead
+    // reckoning's uncertainty lets it). The landing's reference must start again from there, not ask for a
+    // height far below the vehicle (the step that drove a simulated vehicle into the floor at 1.5 m/s).
+    let mut h = Harness::hovering();
+    assert_eq!(h.command(Command::Land), Some(CommandResult::Accepted(Command::Land)));
+    h.tracks_estimate = true;
+    h.vision_on = false;
+    h.tilt_accel = Vec3::new(0.0, 0.0, -0.15);
+    h.run(3.0);
+    let out = h.out.unwrap();
+    let drifted = h.p.z - out.estimate.position_m.z;
+    assert!(drifted > 0.2, "the estimate drifted {drifted} m");
+    assert_eq!(h.mode(), FlightMode::Landing);
+    let resets = h.core.estimator.counters().position_resets;
+    h.vision_on = true;
+    let mut jumped = None;
+    for _ in 0..100 {
+        let out = h.step(None);
+        if (out.estimate.position_m.z - h.p.z).abs() < 0.1 {
+            jumped = Some(out);
+            break;
+        }
+    }
+    let out = jumped.expect("vision brought the estimate back");
+    assert_eq!(h.core.estimator.counters().position_resets, resets, "a fix accepted, not a reset");
+    let gap = out.estimate.position_m.z - out.setpoint.position_m.z;
+    assert!(gap.abs() < 0.05, "the reference is {gap} m below the estimate");
 }
 
 #[test]

@@ -82,6 +82,11 @@ pub const TOUCHDOWN_EXPECTED_M: f32 = 0.2;
 /// A take-off that timed out this high above the pad hovers; lower, it lands (m).
 pub const TAKEOFF_AIRBORNE_M: f32 = 0.1;
 
+/// The estimate's height moving this much in one control step is a jump (a fix accepted after a long
+/// dead-reckoning, whose uncertainty lets it move the estimate at once), not motion (m): the references start
+/// again from the new estimate, as after a position reset.
+pub const HEIGHT_JUMP_M: f32 = 0.1;
+
 /// An operator command (from the ground station over the radio link).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
@@ -316,6 +321,8 @@ pub struct ControlCore {
     hover_thrust_n: Option<f32>,
     /// The estimator's position resets already acted on.
     position_resets_seen: u32,
+    /// The estimate's height at the previous step (to see a jump).
+    last_est_z: Option<f32>,
     /// The sweep a vision hold interrupted, resumed when vision returns.
     paused_sweep: Option<Sweep>,
     limiter: laws::SetpointLimiter,
@@ -364,6 +371,7 @@ impl ControlCore {
             resume_climb: false,
             paused_sweep: None,
             position_resets_seen: 0,
+            last_est_z: None,
             hover_thrust_n: None,
             unsupported_since_us: None,
             yaw_frame: (false, 0),
@@ -576,10 +584,14 @@ impl ControlCore {
         let link_ok =
             self.last_link_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.link_land_after_s);
         let est = self.estimator.estimate(now);
-        // A position reset (vision back after a long dead-reckoning) moves the estimate at once: the references
+        // A position reset or a jump (vision back after a long dead-reckoning) moves the estimate at once: the references
         // start again from the new estimate, at their bounded rates (a landing descends from the new height).
         let resets = self.estimator.counters().position_resets;
-        if resets != self.position_resets_seen {
+        let jumped = self
+            .last_est_z
+            .replace(est.position_m.z)
+            .is_some_and(|z| libm::fabsf(est.position_m.z - z) > HEIGHT_JUMP_M);
+        if resets != self.position_resets_seen || jumped {
             self.position_resets_seen = resets;
             self.limiter.restart(est.position_m);
             if self.mode == FlightMode::Landing {

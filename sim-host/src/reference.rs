@@ -446,7 +446,8 @@ mod tests {
                 airborne: None,
             });
             if ms % 10 == 0 {
-                let imu = ImuSample { time_us: ms * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: [0.0, 0.0, 9.81] };
+                let imu =
+                    ImuSample { time_us: ms * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: [0.0, 0.0, 9.81] };
                 let known = ms >= 20;
                 s.step(ms * 1000, &[imu, imu], None, if known { &truth } else { &level }, known);
             }

@@ -1,6 +1,9 @@
 //! The estimator's measurements: vision fixes, optical-flow velocity, magnetometer heading, and the
 //! accelerometer's own aiding (still: zero velocity, gravity, zero rate; carried: gravity; flying: rotor drag).
-use super::{BodyVelocity, Estimator, FuseOutcome, IBA, IBG, IP, ITH, IV, IW, N, PositionFix, wrap_pi};
+use super::{
+    BodyVelocity, Estimator, FuseOutcome, IBA, IBG, IP, ITH, IV, IW, N, PositionFix, states, wrap_pi,
+};
+
 use crate::GRAVITY;
 use crate::motion::{MotionClass, MotionReport};
 use geometry::frames::Attitude;
@@ -160,6 +163,20 @@ impl Estimator {
                     }
                     let sv = self.params.reset_velocity_sigma_m_s;
                     self.cov[iv][iv] = sv * sv;
+                }
+                // Fixes refused again and again mean the model broke, and what breaks it without a word is
+                // the IMU: a bias that stepped, a tilt that drifted with it. Those states start again from
+                // their initial uncertainty, so that the fixes to come can correct them instead of being
+                // refused against a confident and wrong estimate.
+                let p = self.params;
+                for (first, sigma) in [
+                    (ITH, p.initial_tilt_sigma_rad),
+                    (IBG, p.initial_gyro_bias_sigma_rad_s),
+                    (IBA, p.initial_accel_bias_sigma_m_s2),
+                ] {
+                    for k in first..first + 3 {
+                        self.open_variance(k, sigma * sigma);
+                    }
                 }
                 self.vision_position_rejections = 0;
                 self.counters.position_resets += 1;
@@ -458,7 +475,7 @@ impl Estimator {
                 h[IBA..IBA + 3].copy_from_slice(&e.to_array());
             }
             let pred = e.dot(vb * (-k) + bias);
-            ok &= self.update_considering(&h, e.dot(f) - pred, s * s, true, IBA..IBA + 3);
+            ok &= self.update_considering(&h, e.dot(f) - pred, s * s, true, states(IBA..IBA + 3));
         }
         if ok {
             self.counters.drag_blocks += 1;

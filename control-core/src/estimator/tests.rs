@@ -363,6 +363,19 @@ fn consistent_refusals_reset_the_position_to_vision() {
         }
     }
     assert_eq!(e.counters().position_resets, 1);
+    // The IMU states start again from their initial uncertainty (a bias step is what breaks the model
+    // silently), uncorrelated with the rest.
+    let prm = EstimatorParams::default();
+    for (first, sigma) in [
+        (ITH, prm.initial_tilt_sigma_rad),
+        (IBG, prm.initial_gyro_bias_sigma_rad_s),
+        (IBA, prm.initial_accel_bias_sigma_m_s2),
+    ] {
+        for k in first..first + 3 {
+            assert_eq!(e.cov[k][k], sigma * sigma, "state {k}");
+            assert!((0..N).filter(|&i| i != k).all(|i| e.cov[k][i] == 0.0), "state {k} correlated");
+        }
+    }
     assert!(
         (e.estimate(t).position_m.z - 1.2).abs() < 0.01,
         "reset to vision: {}",

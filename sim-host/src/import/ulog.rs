@@ -46,8 +46,7 @@ pub struct UlogOptions {
 }
 
 /// Which of the log's attitudes is the reference the replay is scored against.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[derive(clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum ReferenceChoice {
     /// The truth when the log has one (`vehicle_attitude_groundtruth`, written by PX4's simulators), else
     /// PX4's estimate.
