@@ -512,7 +512,8 @@ pub struct EstimatorParams {
     /// Consecutive refused vision yaws after which the heading is reset to vision's.
     pub vision_yaw_reset_after: u8,
     /// Consecutive refused vision positions after which the position is reset to vision's (the estimate
-    /// drifted while vision was out, as PX4's EKF2 resets to its aiding source after a fusion timeout).
+    /// drifted while vision was out, as PX4's EKF2 resets to its aiding source after a fusion timeout); the
+    /// tilt and the IMU biases go back to their initial uncertainty with it.
     pub vision_position_reset_after: u8,
     /// Standard deviation given to the velocity when the position is reset (m/s).
     pub reset_velocity_sigma_m_s: f32,
