@@ -141,9 +141,15 @@ struct FrameVision {
 
 /// Re-runs the flight stack over a log held in memory.
 pub fn replay(log: &crate::flightlog::FlightLog, opts: &ReplayOptions) -> Result<ReplaySummary> {
-    let mut s = replay_stream(&log.header, log.records.iter().cloned().map(Ok), opts, None)?;
-    s.damage.extend(log.damage.iter().cloned());
-    Ok(s)
+    // The records and the damage in the order of the file, as the streaming reader gives them: a record
+    // after a damaged stretch is judged knowing of it (a report whose step was lost is counted, not an error).
+    let mut items: Vec<LogItem> = log.records.iter().cloned().map(Ok).collect();
+    items.extend(log.damage.iter().cloned().map(Err));
+    items.sort_by_key(|item| match item {
+        Ok((offset, _)) => (*offset, 1),
+        Err(d) => (d.offset, 0),
+    });
+    replay_stream(&log.header, items.into_iter(), opts, None)
 }
 
 /// Re-runs the flight stack over a log's records as they are read; writes the replayed log to `out` if given
@@ -185,6 +191,7 @@ pub fn replay_stream(
     let mut step_time = 0u64;
     let mut s = ReplaySummary::default();
     let mut first_time = None;
+    let mut first_orphan: Option<(usize, usize)> = None;
     let writing = out.is_some();
     let mut write = |r: &LogRecord| -> Result<()> {
         match out.as_deref_mut() {
@@ -266,11 +273,9 @@ pub fn replay_stream(
             LogRecord::Report(logged) => {
                 s.has_outputs = true;
                 let Some((time_us, replayed)) = last.take() else {
-                    // Its step was in a damaged stretch (listed in `damage`); in an intact log this cannot
-                    // happen, and is an error.
-                    if s.damage.is_empty() {
-                        bail!("record {index} (byte {offset}): a report without a step before it");
-                    }
+                    // Its step was in a damaged stretch. The damage may be found only further on (a whole
+                    // record cut out shows only in the end record's count): judged at the end.
+                    first_orphan.get_or_insert((index, offset));
                     s.reports_without_step += 1;
                     continue;
                 };
@@ -343,6 +348,12 @@ pub fn replay_stream(
         }
     }
     s.reference = score.map(|sc| sc.json());
+    if let Some((index, offset)) = first_orphan
+        && s.damage.is_empty()
+    {
+        // An intact log (its end record checked) cannot have one: the writer's order is broken.
+        bail!("record {index} (byte {offset}): a report without a step before it, in a log without damage");
+    }
     if opts.vision == VisionSource::Frames && s.frames == 0 && s.links > 0 {
         bail!(
             "the log holds no camera frames (flown with --camera analytic or --frames none): replay from the \

@@ -266,3 +266,107 @@ fn a_log_truncated_anywhere_is_damaged_never_identical() {
     assert!(replayed > 40);
     let _ = std::fs::remove_dir_all(path.parent().unwrap());
 }
+
+/// Applies 1 to 8 random edits to `b` (after the header's first `keep` bytes when `keep` is given): a bit
+/// flipped, a byte zeroed, a stretch deleted, duplicated or inserted at random, the tail cut.
+fn mutate(b: &mut Vec<u8>, keep: usize, rng: &mut SimRng) {
+    let edits = 1 + (rng.next_u64() % 8) as usize;
+    for _ in 0..edits {
+        if b.len() <= keep + 1 {
+            return;
+        }
+        let at = keep + (rng.next_u64() as usize) % (b.len() - keep);
+        let len = 1 + (rng.next_u64() % 96) as usize;
+        let end = (at + len).min(b.len());
+        match rng.next_u64() % 6 {
+            0 => b[at] ^= 1 << (rng.next_u64() % 8),
+            1 => b[at] = 0,
+            2 => {
+                b.drain(at..end);
+            }
+            3 => {
+                let copy = b[at..end].to_vec();
+                b.splice(end..end, copy);
+            }
+            4 => {
+                b.splice(at..at, (0..len).map(|_| rng.next_u64() as u8));
+            }
+            _ => b.truncate(at.max(keep + 1)),
+        }
+    }
+}
+
+#[test]
+fn twenty_thousand_mutated_logs_replay_and_export_without_aborting() {
+    // A 0.3 s flight (steps, reports, links, downlinks, truth: every kind a flight writes). Each of
+    // 20,000 mutated copies either is refused whole with an error (its header damaged) or reads with its damage
+    // listed; then replay and both exports run to the end (never an error, never a panic), every report read
+    // is compared or counted as without its step, every downlink read is compared, and every record read
+    // reaches the export.
+    let path =
+        system_tests::fly_logged("replay-test-mutated", 9, 0.3, CameraMode::Analytic, FramePolicy::Drop);
+    let bytes = std::fs::read(&path).unwrap();
+    let whole = parse_log(&bytes).unwrap();
+    let body = whole.records[0].0;
+    for kind in ["Step", "Report", "Link", "Downlink", "Truth", "End"] {
+        let n = whole.records.iter().filter(|(_, r)| format!("{r:?}").starts_with(kind)).count();
+        assert!(n > 0, "the flight's log holds {kind} records");
+    }
+    let out = path.parent().unwrap().join("export");
+    let mut rng = SimRng::stream(12, "log-mutations");
+    let (mut refused, mut damaged, mut intact) = (0u32, 0u32, 0u32);
+    for case in 0..20_000u32 {
+        let mut b = bytes.clone();
+        // One case in 20 edits the header too.
+        mutate(&mut b, if case % 20 == 0 { 0 } else { body }, &mut rng);
+        let log = match parse_log(&b) {
+            Ok(log) => log,
+            Err(e) => {
+                let e = format!("{e:#}");
+                assert!(
+                    e.contains("byte") || e.contains("not a flight log") || e.contains("header"),
+                    "case {case}: {e}"
+                );
+                refused += 1;
+                continue;
+            }
+        };
+        if log.damage.is_empty() {
+            // Read as intact only when the edits cancelled out.
+            assert_eq!(b, bytes, "case {case}: a changed log read as intact");
+            intact += 1;
+        } else {
+            damaged += 1;
+        }
+        let count = |f: fn(&LogRecord) -> bool| log.records.iter().filter(|(_, r)| f(r)).count() as u64;
+        let reports = count(|r| matches!(r, LogRecord::Report(_)));
+        let downlinks = count(|r| matches!(r, LogRecord::Downlink(_)));
+        let s = replay(&log, &ReplayOptions::default()).unwrap_or_else(|e| {
+            panic!(
+                "case {case}: replay aborted: {e:#}; damage {:?}; {} bytes of {}",
+                log.damage,
+                b.len(),
+                bytes.len()
+            )
+        });
+        assert_eq!(s.compared + s.reports_without_step, reports, "case {case}");
+        assert_eq!(s.downlinks_compared, downlinks, "case {case}");
+        // Every tenth case through both exports (each writes files): the streaming reader on the same bytes.
+        if case % 10 == 0 {
+            let reader = || LogReader::new(&b[..]).unwrap();
+            let m = sim_host::export::export_mcap(&log.header, reader(), &out.with_extension("mcap"))
+                .unwrap_or_else(|e| panic!("case {case}: MCAP export aborted: {e:#}"));
+            let c = sim_host::export::export_csv(&log.header, reader(), &out)
+                .unwrap_or_else(|e| panic!("case {case}: CSV export aborted: {e:#}"));
+            for e in [&m, &c] {
+                assert_eq!(e.damage.len(), log.damage.len(), "case {case}");
+                assert_eq!(e.messages.get("/status").copied().unwrap_or(0), reports, "case {case}");
+            }
+        }
+    }
+    eprintln!(
+        "20000 mutated logs: {refused} refused (header), {damaged} read with damage, {intact} read intact"
+    );
+    assert!(damaged > 15_000, "the mutations reach the records: {damaged}");
+    let _ = std::fs::remove_dir_all(path.parent().unwrap());
+}
