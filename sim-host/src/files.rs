@@ -47,6 +47,8 @@ pub struct AtomicFile {
     path: PathBuf,
     tmp: PathBuf,
     file: Option<std::io::BufWriter<std::fs::File>>,
+    /// Bytes the file may still take before writes fail as on a full disk (tests of that path only).
+    space: Option<u64>,
 }
 
 impl AtomicFile {
@@ -55,7 +57,42 @@ impl AtomicFile {
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         let tmp = path.with_file_name(format!(".{name}.partial-{}", std::process::id()));
         let f = std::fs::File::create(&tmp).with_context(|| format!("cannot create {}", path.display()))?;
-        Ok(Self { path: path.to_path_buf(), tmp, file: Some(std::io::BufWriter::with_capacity(1 << 20, f)) })
+        Ok(Self {
+            path: path.to_path_buf(),
+            tmp,
+            file: Some(std::io::BufWriter::with_capacity(1 << 20, f)),
+            space: None,
+        })
+    }
+
+    /// As [`AtomicFile::create`], on a "disk" that takes `bytes` more bytes: later writes fail with
+    /// `StorageFull`, as a full disk's do (for tests of what a full disk does to a command).
+    pub fn create_with_space(path: &Path, bytes: u64) -> Result<Self> {
+        let mut f = Self::create(path)?;
+        f.space = Some(bytes);
+        Ok(f)
+    }
+
+    /// The name under which [`AtomicFile::keep_partial`] keeps an unfinished file: `NAME.partial`.
+    pub fn partial_path(path: &Path) -> PathBuf {
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        path.with_file_name(format!("{name}.partial"))
+    }
+
+    /// Gives up on the file and keeps what reached the disk under [`AtomicFile::partial_path`] (the
+    /// destination untouched): a write that failed half way, on a full disk, loses nothing written before it.
+    /// Returns that name.
+    pub fn keep_partial(mut self) -> Result<PathBuf> {
+        let kept = Self::partial_path(&self.path);
+        if let Some(f) = self.file.take() {
+            // What the buffer still holds goes to the disk if it can (a full disk may refuse it).
+            if let Err(e) = f.into_inner() {
+                drop(e.into_inner());
+            }
+            std::fs::rename(&self.tmp, &kept)
+                .with_context(|| format!("cannot keep the unfinished file as {}", kept.display()))?;
+        }
+        Ok(kept)
     }
 
     /// The destination.
@@ -81,8 +118,21 @@ impl AtomicFile {
 
 impl Write for AtomicFile {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let buf = match self.space {
+            Some(0) if !buf.is_empty() => {
+                return Err(std::io::Error::new(std::io::ErrorKind::StorageFull, "no space left on device"));
+            }
+            Some(n) => &buf[..buf.len().min(n as usize)],
+            None => buf,
+        };
         match self.file.as_mut() {
-            Some(f) => f.write(buf),
+            Some(f) => {
+                let k = f.write(buf)?;
+                if let Some(n) = self.space.as_mut() {
+                    *n -= k as u64;
+                }
+                Ok(k)
+            }
             None => Err(std::io::Error::other("file already committed")),
         }
     }

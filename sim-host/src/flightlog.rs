@@ -26,7 +26,7 @@ use protocol::frame::{FrameError, WIRE_VERSION, cobs_decode_in_place, cobs_encod
 use protocol::{Downlink, Uplink};
 use serde::{Deserialize, Serialize};
 use std::io::{BufRead, Write};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The file's first bytes.
 pub const LOG_MAGIC: &[u8; 6] = b"WLQLOG";
@@ -360,7 +360,11 @@ pub struct LogWriter {
 impl LogWriter {
     /// Creates `path` (under a temporary name until [`LogWriter::finish`]) and writes the header.
     pub fn create(path: &Path, header: &LogHeader) -> Result<Self> {
-        let mut out = crate::files::AtomicFile::create(path)?;
+        Self::create_on(crate::files::AtomicFile::create(path)?, header)
+    }
+
+    /// Writes the header to `out`, then the records (a log on a given file, e.g. one with little space).
+    pub fn create_on(mut out: crate::files::AtomicFile, header: &LogHeader) -> Result<Self> {
         let head = header_bytes(header)?;
         out.write_all(&head)?;
         Ok(Self { out, records: 0, bytes: head.len() as u64, crc: crc32fast::Hasher::new() })
@@ -377,6 +381,12 @@ impl LogWriter {
         self.records += 1;
         self.bytes += frame.len() as u64;
         Ok(())
+    }
+
+    /// Gives up after a failed write (a full disk): what reached the disk is kept as `NAME.partial`, a log
+    /// that reads as truncated after its last whole record. Returns that name.
+    pub fn keep_partial(self) -> Result<PathBuf> {
+        self.out.keep_partial()
     }
 
     /// Writes the end record, flushes to disk and moves the file into place under its name.
@@ -863,6 +873,47 @@ mod tests {
             reference: String::new(),
             reference_yaw_absolute: false,
         }
+    }
+
+    #[test]
+    fn a_full_disk_keeps_what_was_written() {
+        // A disk with room for the header and a few hundred records: the write that fails is reported, the
+        // records before it are kept under NAME.partial (read back whole, the tail reported as truncated),
+        // and nothing appears under the final name.
+        let dir = std::env::temp_dir().join(format!("wlq-full-disk-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("flight.log");
+        let file = crate::files::AtomicFile::create_with_space(&path, 8_000).unwrap();
+        let mut w = LogWriter::create_on(file, &sample_header()).unwrap();
+        let record = |k: u64| LogRecord::Truth {
+            time_us: k,
+            position_m: [k as f32, 1.0, 2.0],
+            velocity_m_s: [0.0; 3],
+            attitude_rad: [0.0; 3],
+        };
+        let mut k = 0;
+        let err = loop {
+            match w.write(&record(k)) {
+                Ok(()) => k += 1,
+                Err(e) => break e,
+            }
+            assert!(k < 10_000, "the disk never filled");
+        };
+        assert!(format!("{err:#}").contains("no space left"), "{err:#}");
+        assert_eq!(w.records, k);
+        let kept = w.keep_partial().unwrap();
+        assert_eq!(kept, dir.join("flight.log.partial"));
+        assert!(!path.exists(), "no file under the final name");
+        let bytes = std::fs::read(&kept).unwrap();
+        assert_eq!(bytes.len(), 8_000, "every byte the disk took");
+        let log = parse_log(&bytes).unwrap();
+        assert_eq!(log.records.len() as u64, k, "every record written before the failure");
+        for (i, (_, r)) in log.records.iter().enumerate() {
+            assert_eq!(*r, record(i as u64));
+        }
+        assert_eq!(log.damage.len(), 1);
+        assert!(log.damage[0].what.contains("truncated"), "{}", log.damage[0]);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -1116,9 +1116,18 @@ impl Sil {
         let Some(w) = self.flight_log.as_mut() else { return };
         for r in records {
             if let Err(e) = w.write(r) {
-                // Keep flying; the error is reported when the log is finished.
-                self.log_error = Some(format!("{e:#}"));
-                self.flight_log = None;
+                // Keep flying; the error is reported when the log is finished, with what was kept.
+                let (n, bytes) = (w.records, w.bytes);
+                let kept = match self.flight_log.take().map(|w| w.keep_partial()) {
+                    Some(Ok(p)) => format!(
+                        "{n} records ({bytes} bytes) had been written; what reached the disk is kept in {} (it \
+                         reads as truncated after its last whole record)",
+                        p.display()
+                    ),
+                    Some(Err(k)) => format!("and what was written could not be kept: {k:#}"),
+                    None => String::new(),
+                };
+                self.log_error = Some(format!("{e:#}; {kept}"));
                 return;
             }
         }

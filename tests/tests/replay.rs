@@ -370,3 +370,37 @@ fn twenty_thousand_mutated_logs_replay_and_export_without_aborting() {
     assert!(damaged > 15_000, "the mutations reach the records: {damaged}");
     let _ = std::fs::remove_dir_all(path.parent().unwrap());
 }
+
+#[test]
+fn a_flight_on_a_full_disk_flies_on_and_keeps_its_log_so_far() {
+    // The disk fills 200 kB into the log: the simulation goes on, finishing the log reports the failure and
+    // where the records written so far are, and that file reads as a truncated log with every record whole.
+    let dir = std::env::temp_dir().join(format!("replay-test-full-disk-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(LOG_FILE);
+    let s = sim_host::Scenario::paper();
+    let mut sil = sim_host::sil::Sil::new(&s, 3, CameraMode::Analytic).unwrap();
+    let header = sim_host::flightlog::LogHeader {
+        format_version: sim_host::flightlog::LOG_FORMAT_VERSION,
+        schema_hash: sim_host::flightlog::schema_hash(),
+        wire_version: protocol::frame::WIRE_VERSION,
+        writer: "test".into(),
+        scenario_toml: String::new(),
+        seed: 3,
+        camera: "analytic".into(),
+        flight_computer: "sil".into(),
+        reference: String::new(),
+        reference_yaw_absolute: false,
+    };
+    let file = sim_host::files::AtomicFile::create_with_space(&path, 200_000).unwrap();
+    sil.record_log(sim_host::flightlog::LogWriter::create_on(file, &header).unwrap(), FramePolicy::Drop);
+    let stats = sil.run(3.0, |_| {});
+    assert!(stats.sim_time_s >= 2.99, "the flight went on: {} s", stats.sim_time_s);
+    let e = format!("{:#}", sil.finish_log().unwrap_err());
+    assert!(e.contains("no space left") && e.contains("flight.log.partial"), "{e}");
+    assert!(!path.exists());
+    let log = read_log(&dir.join("flight.log.partial")).unwrap();
+    assert!(log.records.len() > 500, "{} records kept", log.records.len());
+    assert_eq!(log.damage.len(), 1, "{:?}", log.damage);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
