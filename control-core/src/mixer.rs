@@ -170,4 +170,99 @@ mod tests {
         assert!(f.torque_nm.z > 0.0);
         assert!(signed_rotor_sum([600.0, 500.0, 600.0, 500.0]) < 0.0);
     }
+
+    #[test]
+    fn the_signed_rotor_sum_weighs_each_rotor_by_its_spin() {
+        // M1 and M3 clockwise (-1), M2 and M4 counter-clockwise (+1).
+        assert_eq!(signed_rotor_sum([1.0, 2.0, 3.0, 5.0]), -1.0 + 2.0 - 3.0 + 5.0);
+        assert_eq!(signed_rotor_sum([7.0, 0.0, 0.0, 0.0]), -7.0);
+        assert_eq!(signed_rotor_sum([0.0, 0.0, 0.0, 11.0]), 11.0);
+    }
+
+    /// The rotor speeds squared, their spread, and the room the limits leave.
+    fn spread_and_room(m: &MixerOutput, v: &VehicleParams) -> (f32, f32, f32) {
+        let s = m.speeds_rad_s.map(|w| w * w);
+        let lo = s.iter().copied().fold(f32::INFINITY, f32::min);
+        let hi = s.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        let room = v.motor_speed_max_rad_s.powi(2) - v.motor_speed_min_rad_s.powi(2);
+        (lo, hi, room)
+    }
+
+    #[test]
+    fn yaw_gives_way_exactly_as_far_as_needed() {
+        // Pitch that fits with room to spare, and a yaw that does not: the yaw kept is the largest that fits
+        // (the rotors then span exactly the limits' room, which leaves the thrust one value), the pitch is
+        // kept whole.
+        let v = VehicleParams::default();
+        let d = Demand { thrust_n: v.mass_kg * GRAVITY, torque_nm: Vec3::new(0.0, 0.05, 0.5) };
+        let m = mix(&d, &v);
+        assert!(m.yaw_limited && !m.tilt_limited && m.thrust_limited, "{m:?}");
+        let f = forces(m.speeds_rad_s, &v);
+        assert!((f.torque_nm.y - 0.05).abs() < 1e-4, "{:?}", f.torque_nm);
+        assert!(f.torque_nm.x.abs() < 1e-4);
+        assert!(f.torque_nm.z > 0.0 && f.torque_nm.z < 0.5, "{:?}", f.torque_nm);
+        let (lo, hi, room) = spread_and_room(&m, &v);
+        assert!((hi - lo - room).abs() < 1e-3 * room, "spread {} of room {room}", hi - lo);
+        // With pitch alone beside it the rotors span (|tau_z| / k_tau + |tau_y| / (l k)) / 2: the largest yaw
+        // is k_tau (2 room - |tau_y| / (l k)).
+        let yaw_max = v.drag_torque_coeff * (2.0 * room - 0.05 / (v.arm_length_m * v.thrust_coeff));
+        assert!((f.torque_nm.z - yaw_max).abs() < 1e-3 * yaw_max, "yaw {} of {yaw_max}", f.torque_nm.z);
+        // Roll and pitch together with too much yaw: both kept whole (a yaw left too large would be cut by the
+        // rotors' limits, and roll with it).
+        let d = Demand { thrust_n: v.mass_kg * GRAVITY, torque_nm: Vec3::new(0.03, 0.05, 0.5) };
+        let m = mix(&d, &v);
+        assert!(m.yaw_limited && !m.tilt_limited, "{m:?}");
+        let f = forces(m.speeds_rad_s, &v);
+        assert!(
+            (f.torque_nm.x - 0.03).abs() < 1e-4 && (f.torque_nm.y - 0.05).abs() < 1e-4,
+            "{:?}",
+            f.torque_nm
+        );
+        assert!(f.torque_nm.z > 0.0 && f.torque_nm.z < 0.5, "{:?}", f.torque_nm);
+        // The same yaw alone fits: nothing gives way.
+        let m = mix(&Demand { thrust_n: d.thrust_n, torque_nm: Vec3::new(0.0, 0.0, 0.01) }, &v);
+        assert!(!m.yaw_limited);
+        assert!((forces(m.speeds_rad_s, &v).torque_nm.z - 0.01).abs() < 1e-5);
+    }
+
+    #[test]
+    fn roll_and_pitch_too_large_are_scaled_together_to_the_limits() {
+        let v = VehicleParams::default();
+        let d = Demand { thrust_n: v.mass_kg * GRAVITY, torque_nm: Vec3::new(4.0, -2.0, 0.3) };
+        let m = mix(&d, &v);
+        assert!(m.yaw_limited && m.tilt_limited, "{m:?}");
+        let f = forces(m.speeds_rad_s, &v);
+        // Direction kept (x = -2 y), yaw dropped, the rotors spanning the whole room.
+        assert!(
+            (f.torque_nm.x + 2.0 * f.torque_nm.y).abs() < 1e-3 * f.torque_nm.x.abs(),
+            "{:?}",
+            f.torque_nm
+        );
+        assert!(f.torque_nm.x > 0.1 && f.torque_nm.x < 4.0);
+        assert!(f.torque_nm.z.abs() < 1e-4, "{:?}", f.torque_nm);
+        let (lo, hi, room) = spread_and_room(&m, &v);
+        assert!((hi - lo - room).abs() < 1e-3 * room, "spread {} of room {room}", hi - lo);
+    }
+
+    #[test]
+    fn the_thrust_gives_way_to_keep_the_torques_at_both_limits() {
+        let v = VehicleParams::default();
+        let tau = Vec3::new(0.02, -0.01, 0.002);
+        let (lo_lim, hi_lim) = (v.motor_speed_min_rad_s.powi(2), v.motor_speed_max_rad_s.powi(2));
+        // Far more thrust than the rotors give: the fastest rotor at its limit, torques whole.
+        let m = mix(&Demand { thrust_n: 100.0, torque_nm: tau }, &v);
+        assert!(m.thrust_limited && !m.yaw_limited && !m.tilt_limited, "{m:?}");
+        let (_, hi, _) = spread_and_room(&m, &v);
+        assert!((hi - hi_lim).abs() < 1e-3 * hi_lim, "fastest {hi} of {hi_lim}");
+        assert!((forces(m.speeds_rad_s, &v).torque_nm - tau).norm() < 1e-4);
+        // No thrust asked: the slowest rotor at idle, torques whole.
+        let m = mix(&Demand { thrust_n: 0.0, torque_nm: tau }, &v);
+        assert!(m.thrust_limited, "{m:?}");
+        let (lo, _, _) = spread_and_room(&m, &v);
+        assert!((lo - lo_lim).abs() < 1e-3 * hi_lim, "slowest {lo} of {lo_lim}");
+        assert!((forces(m.speeds_rad_s, &v).torque_nm - tau).norm() < 1e-4);
+        // A thrust within the limits is not touched.
+        let m = mix(&Demand { thrust_n: v.mass_kg * GRAVITY, torque_nm: tau }, &v);
+        assert!(!m.thrust_limited);
+    }
 }
