@@ -337,4 +337,208 @@ mod tests {
         let (d, _) = c.update(&est, &sp, 0.002, false, [0.0; 4]);
         assert!(d.thrust_n <= p.vehicle.mass_kg * GRAVITY / p.gains.altitude.min_cos_tilt + 1e-3);
     }
+
+    #[test]
+    fn the_limiter_moves_the_reference_at_its_rates_and_passes_it_within_them() {
+        let mut l = SetpointLimiter::new();
+        let at = |p: Vec3| Setpoint {
+            position_m: p,
+            velocity_m_s: Vec3::new(0.1, 0.2, 0.3),
+            accel_m_s2: Vec3::new(0.4, 0.5, 0.6),
+            yaw_rad: 0.7,
+        };
+        // It starts at the first reference: passed whole.
+        let first = at(Vec3::new(1.0, 2.0, 3.0));
+        assert_eq!(l.limit(&first, 1.0, 0.4, 0.5), first);
+        // 5 m away horizontally (3, 4), 2 m up: 0.5 m along the horizontal direction, 0.2 m up, at the limiter's
+        // own velocity and no acceleration on the limited axes; the yaw passes.
+        let far = at(Vec3::new(4.0, 6.0, 5.0));
+        let out = l.limit(&far, 1.0, 0.4, 0.5);
+        assert!((out.position_m - Vec3::new(1.3, 2.4, 3.2)).norm() < 1e-6, "{:?}", out.position_m);
+        assert!((out.velocity_m_s - Vec3::new(0.6, 0.8, 0.4)).norm() < 1e-6, "{:?}", out.velocity_m_s);
+        assert_eq!(out.accel_m_s2, Vec3::ZERO);
+        assert_eq!(out.yaw_rad, 0.7);
+        // Downward, and the next step from where it got to.
+        let low = at(Vec3::new(1.3, 2.4, 0.0));
+        let out = l.limit(&low, 1.0, 0.4, 0.5);
+        assert!((out.position_m - Vec3::new(1.3, 2.4, 3.0)).norm() < 1e-6, "{:?}", out.position_m);
+        assert!((out.velocity_m_s.z + 0.4).abs() < 1e-6 && out.accel_m_s2.z == 0.0);
+        // Horizontal within the rate: x and y, their velocity and acceleration pass.
+        assert_eq!((out.velocity_m_s.x, out.velocity_m_s.y), (0.1, 0.2));
+        assert_eq!((out.accel_m_s2.x, out.accel_m_s2.y), (0.4, 0.5));
+        // A reference within both rates passes whole.
+        let near = at(Vec3::new(1.5, 2.4, 2.9));
+        assert_eq!(l.limit(&near, 1.0, 0.4, 0.5), near);
+        // A zero step moves nothing and divides by nothing.
+        let out = l.limit(&far, 1.0, 0.4, 0.0);
+        assert_eq!(out, far);
+        // Restarted: measured from the new point.
+        l.restart(Vec3::new(0.0, 0.0, 0.0));
+        let out = l.limit(&at(Vec3::new(0.0, 10.0, 0.0)), 2.0, 0.4, 0.25);
+        assert!((out.position_m - Vec3::new(0.0, 0.5, 0.0)).norm() < 1e-6, "{:?}", out.position_m);
+        assert!((out.velocity_m_s.y - 2.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn one_axis_is_the_sum_of_four_saturations() {
+        let g = SaturatedAxisGains {
+            k: [8.0, 4.0, 2.0, 3.0],
+            b: [5.0, 6.0, 1.0, 1.5],
+            ..SaturatedAxisGains::default()
+        };
+        // Unsaturated: u = -sign (k4 e' + k3 e) - k2 rate - k1 (angle - ref); the angle asked is
+        // ref - sign (k4 e' + k3 e) / k1.
+        for sign in [1.0, -1.0] {
+            let (e, de, angle, rate, r) = (0.2, 0.1, 0.05, 0.3, 0.01);
+            let pos = 3.0 * de + 2.0 * e;
+            let (u, ang, sat) = bounded_axis(&g, sign, e, de, angle, rate, r);
+            let want = -sign * pos - 4.0 * rate - 8.0 * (angle - r);
+            assert!((u - want).abs() < 1e-6, "sign {sign}: u {u} want {want}");
+            assert!((ang - (r - sign * pos / 8.0)).abs() < 1e-6, "sign {sign}: angle {ang}");
+            assert!(!sat);
+        }
+        // Each term at its own bound: position 1, velocity 1.5, rate 6, angle 5.
+        let (u, ang, sat) = bounded_axis(&g, 1.0, 10.0, 10.0, 2.0, 10.0, 0.0);
+        assert!((u - (-(1.5 + 1.0) - 6.0 - 5.0)).abs() < 1e-6, "{u}");
+        assert!((ang + 2.5 / 8.0).abs() < 1e-6, "{ang}");
+        assert!(sat);
+        // The velocity term alone saturated, then the position term alone: each flags it.
+        assert!(bounded_axis(&g, 1.0, 0.0, 0.6, 0.0, 0.0, 0.0).2);
+        assert!(bounded_axis(&g, 1.0, 0.6, 0.0, 0.0, 0.0, 0.0).2);
+        assert!(!bounded_axis(&g, 1.0, 0.4, 0.4, 0.0, 0.0, 0.0).2);
+        // Negative errors saturate at the negative bounds.
+        let (u, _, _) = bounded_axis(&g, -1.0, -10.0, -10.0, -2.0, -10.0, 0.0);
+        assert!((u - (-(2.5) + 6.0 + 5.0)).abs() < 1e-6, "{u}");
+    }
+
+    /// The laws written out from the equations (eq. 30, 31, 33-34, 23) for a state, a reference and
+    /// integrals at zero: the oracle the controller's one step is checked against.
+    fn laws_by_hand(
+        p: &FlightParams,
+        est: &StateEstimate,
+        sp: &Setpoint,
+        drag: f32,
+        w_rot: [f32; 4],
+    ) -> Demand {
+        let (g, v) = (&p.gains, &p.vehicle);
+        let (r, th, psi) = (est.attitude.roll, est.attitude.pitch, est.attitude.yaw);
+        let w = est.rates_rad_s;
+        // World (x along the wall, y away from it) to the navigation frame (x toward the wall, y along it).
+        let nav = |x: Vec3| WORLD_FROM_NAV.tmul_vec(x);
+        let e = nav(est.position_m - sp.position_m);
+        let de = nav(est.velocity_m_s - sp.velocity_m_s);
+        let air = sp.velocity_m_s - Vec3::new(est.wind_m_s.x, est.wind_m_s.y, 0.0);
+        let a = nav(sp.accel_m_s2 + air * drag);
+        // Along the heading: forward and left.
+        let (c, s) = (psi.cos(), psi.sin());
+        let fwd = |x: Vec3| c * x.x + s * x.y;
+        let left = |x: Vec3| -s * x.x + c * x.y;
+        let pitch_ref = (fwd(a) / GRAVITY).atan();
+        let roll_ref = -(left(a) / GRAVITY).atan();
+        let (u_pitch, _, _) = bounded_axis(&g.pitch, 1.0, fwd(e), fwd(de), th, w.y, pitch_ref);
+        let (u_roll, _, _) = bounded_axis(&g.roll, -1.0, left(e), left(de), r, w.x, roll_ref);
+        let yaw_err = wrap_pi(psi - sp.yaw_rad);
+        let u_yaw = sat(-g.yaw.a_psi1 * w.z - g.yaw.a_psi2 * yaw_err, g.yaw.max_accel_rad_s2);
+        let ez = est.position_m.z - sp.position_m.z;
+        let dez = est.velocity_m_s.z - sp.velocity_m_s.z;
+        let acc = GRAVITY + sp.accel_m_s2.z - g.altitude.a_z1 * dez - g.altitude.a_z2 * ez;
+        let cos_tilt = (r.cos() * th.cos()).max(g.altitude.min_cos_tilt);
+        let t_max = g.altitude.max_thrust_to_weight * v.mass_kg * GRAVITY;
+        let thrust = (v.mass_kg * acc / cos_tilt).clamp(0.0, t_max);
+        let j = v.inertia_kg_m2;
+        let jw = Vec3::new(j[0] * w.x, j[1] * w.y, j[2] * w.z);
+        let spin = -w_rot[0] + w_rot[1] - w_rot[2] + w_rot[3];
+        let h = Vec3::new(0.0, 0.0, v.rotor_inertia_kg_m2 * spin);
+        let gyro = if g.compensate_gyroscopic { w.cross(jw) + w.cross(h) } else { Vec3::ZERO };
+        Demand { thrust_n: thrust, torque_nm: Vec3::new(j[0] * u_roll, j[1] * u_pitch, j[2] * u_yaw) + gyro }
+    }
+
+    #[test]
+    fn one_step_of_the_laws_is_the_equations() {
+        let p = FlightParams::paper();
+        let mut x = 7u32;
+        let mut rnd = |s: f32| {
+            x = x.wrapping_mul(1_103_515_245).wrapping_add(12345);
+            ((x >> 8) as f32 / (1u32 << 24) as f32 * 2.0 - 1.0) * s
+        };
+        for case in 0..2000 {
+            let mut est = StateEstimate {
+                position_m: Vec3::new(1.0 + rnd(0.3), 1.3 + rnd(0.3), 0.8 + rnd(0.3)),
+                velocity_m_s: Vec3::new(rnd(0.5), rnd(0.5), rnd(0.5)),
+                rates_rad_s: Vec3::new(rnd(1.0), rnd(1.0), rnd(1.0)),
+                wind_m_s: Vec3::new(rnd(1.0), rnd(1.0), 0.0),
+                ..StateEstimate::default()
+            };
+            est.attitude = geometry::frames::Attitude::new(rnd(0.3), rnd(0.3), rnd(0.5));
+            let sp = Setpoint {
+                position_m: Vec3::new(1.0 + rnd(0.3), 1.3 + rnd(0.3), 0.8 + rnd(0.3)),
+                velocity_m_s: Vec3::new(rnd(0.5), rnd(0.2), rnd(0.3)),
+                accel_m_s2: Vec3::new(rnd(1.0), rnd(0.5), rnd(0.5)),
+                yaw_rad: rnd(0.3),
+            };
+            let w_rot = [500.0 + rnd(100.0), 500.0 + rnd(100.0), 500.0 + rnd(100.0), 500.0 + rnd(100.0)];
+            let drag = if case % 2 == 0 { 0.3 } else { 0.0 };
+            let mut c = Controller::with_drag(p.gains, p.vehicle, drag);
+            let (d, status) = c.update(&est, &sp, 0.002, false, w_rot);
+            let want = laws_by_hand(&p, &est, &sp, drag, w_rot);
+            assert!(
+                (d.thrust_n - want.thrust_n).abs() < 1e-4 * want.thrust_n.abs().max(1.0),
+                "case {case}: thrust"
+            );
+            let scale = want.torque_nm.norm().max(1e-4);
+            assert!(
+                (d.torque_nm - want.torque_nm).norm() < 1e-4 * scale,
+                "case {case}: {:?} {:?}",
+                d.torque_nm,
+                want.torque_nm
+            );
+            // No integral without `integrate`.
+            assert_eq!(status.trim_rad, [0.0; 2]);
+            assert_eq!(c.attitude_integral, [0.0; 3]);
+            assert_eq!(c.altitude_integral, 0.0);
+        }
+    }
+
+    #[test]
+    fn the_integrals_grow_against_the_error_and_reset_clears_them() {
+        let p = FlightParams::paper();
+        let mut c = Controller::new(p.gains, p.vehicle);
+        // Hovering 0.1 m low, 2 deg of pitch and roll from what the position asks, yaw 0.1 rad off.
+        let est = StateEstimate {
+            position_m: Vec3::new(1.0, 1.3, 0.7),
+            attitude: geometry::frames::Attitude::new(0.035, 0.035, 0.1),
+            ..StateEstimate::default()
+        };
+        let sp = Setpoint { position_m: Vec3::new(1.0, 1.3, 0.8), ..Setpoint::default() };
+        let fresh = c.update(&est, &sp, 0.002, false, [0.0; 4]).0;
+        let dt = 0.002;
+        c.update(&est, &sp, dt, true, [0.0; 4]);
+        // One step: the altitude integral gains k_i e dt (e = -0.1 m), the attitude ones -k e dt.
+        let a = &p.gains.altitude;
+        assert!((c.altitude_integral - a.integral_gain * -0.1 * dt).abs() < 1e-6, "{}", c.altitude_integral);
+        assert!((c.attitude_integral[2] + p.gains.yaw.integral_gain * 0.1 * dt).abs() < 1e-6);
+        assert!(c.attitude_integral[0] < 0.0 && c.attitude_integral[1] < 0.0, "{:?}", c.attitude_integral);
+        // A height error beyond 0.3 m is integrated as 0.3 m; none while the vertical speed is 0.5 m/s off.
+        let mut c2 = Controller::new(p.gains, p.vehicle);
+        let low = StateEstimate { position_m: Vec3::new(1.0, 1.3, 0.2), ..est };
+        c2.update(&low, &sp, dt, true, [0.0; 4]);
+        assert!(
+            (c2.altitude_integral - a.integral_gain * -0.3 * dt).abs() < 1e-6,
+            "{}",
+            c2.altitude_integral
+        );
+        let mut c3 = Controller::new(p.gains, p.vehicle);
+        let falling = StateEstimate { velocity_m_s: Vec3::new(0.0, 0.0, -0.6), ..est };
+        c3.update(&falling, &sp, dt, true, [0.0; 4]);
+        assert_eq!(c3.altitude_integral, 0.0);
+        for _ in 0..5000 {
+            c.update(&est, &sp, dt, true, [0.0; 4]);
+        }
+        // Bounded, and they change the demand.
+        assert!(c.altitude_integral.abs() <= a.integral_limit_m_s2 + 1e-6);
+        let wound = c.update(&est, &sp, dt, false, [0.0; 4]).0;
+        assert!(wound.thrust_n > fresh.thrust_n, "{} {}", wound.thrust_n, fresh.thrust_n);
+        c.reset();
+        assert_eq!(c.update(&est, &sp, dt, false, [0.0; 4]).0, fresh);
+    }
 }
