@@ -41,6 +41,12 @@ pub fn refuse_overwrite(out: &Path, inputs: &[&Path]) -> Result<()> {
     Ok(())
 }
 
+/// The last component of `path` (empty for a path without one, such as `/`, whose file then cannot be
+/// created anyway).
+fn file_name(path: &Path) -> String {
+    path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+}
+
 /// A file written under a temporary name and renamed into place by [`AtomicFile::commit`]; dropped without
 /// committing, the temporary file is removed and the destination left as it was.
 pub struct AtomicFile {
@@ -54,8 +60,7 @@ pub struct AtomicFile {
 impl AtomicFile {
     /// Creates the temporary file beside `path`.
     pub fn create(path: &Path) -> Result<Self> {
-        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let tmp = path.with_file_name(format!(".{name}.partial-{}", std::process::id()));
+        let tmp = path.with_file_name(format!(".{}.partial-{}", file_name(path), std::process::id()));
         let f = std::fs::File::create(&tmp).with_context(|| format!("cannot create {}", path.display()))?;
         Ok(Self {
             path: path.to_path_buf(),
@@ -75,8 +80,7 @@ impl AtomicFile {
 
     /// The name under which [`AtomicFile::keep_partial`] keeps an unfinished file: `NAME.partial`.
     pub fn partial_path(path: &Path) -> PathBuf {
-        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        path.with_file_name(format!("{name}.partial"))
+        path.with_file_name(format!("{}.partial", file_name(path)))
     }
 
     /// Gives up on the file and keeps what reached the disk under [`AtomicFile::partial_path`] (the

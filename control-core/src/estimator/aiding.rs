@@ -1,9 +1,6 @@
 //! The estimator's measurements: vision fixes, optical-flow velocity, magnetometer heading, and the
 //! accelerometer's own aiding (still: zero velocity, gravity, zero rate; carried: gravity; flying: rotor drag).
-use super::{
-    BodyVelocity, Estimator, FuseOutcome, IBA, IBG, IP, ITH, IV, IW, N, PositionFix, states, wrap_pi,
-};
-
+use super::{BodyVelocity, Estimator, FuseOutcome, IBA, IBG, IP, ITH, IV, IW, N, PositionFix, wrap_pi};
 use crate::GRAVITY;
 use crate::motion::{MotionClass, MotionReport};
 use geometry::frames::Attitude;
@@ -156,13 +153,8 @@ impl Estimator {
                     self.reset_position_axis(axis, fix.position_m[axis] + moved[axis], std_of(axis));
                     // The velocity drifted with the position: its variance is opened (uncorrelated), so that
                     // the next fixes correct it instead of being refused again.
-                    let iv = IV + axis;
-                    for i in 0..N {
-                        self.cov[iv][i] = 0.0;
-                        self.cov[i][iv] = 0.0;
-                    }
                     let sv = self.params.reset_velocity_sigma_m_s;
-                    self.cov[iv][iv] = sv * sv;
+                    self.open_variance(IV + axis, sv * sv);
                 }
                 // Fixes refused again and again mean the model broke, and what breaks it without a word is
                 // the IMU: a bias that stepped, a tilt that drifted with it. Those states start again from
@@ -475,7 +467,7 @@ impl Estimator {
                 h[IBA..IBA + 3].copy_from_slice(&e.to_array());
             }
             let pred = e.dot(vb * (-k) + bias);
-            ok &= self.update_considering(&h, e.dot(f) - pred, s * s, true, states(IBA..IBA + 3));
+            ok &= self.update_considering(&h, e.dot(f) - pred, s * s, true, IBA..IBA + 3);
         }
         if ok {
             self.counters.drag_blocks += 1;

@@ -52,17 +52,6 @@ const HISTORY_LEN: usize = 128;
 /// The history keeps one state per 2 ms at most, whatever the control rate.
 const SNAPSHOT_EVERY_US: u64 = 2000;
 const N: usize = 17;
-
-/// The bit mask of the state indices in `r` (for [`Estimator::update_considering`]).
-const fn states(r: core::ops::Range<usize>) -> u32 {
-    let mut m = 0;
-    let mut i = r.start;
-    while i < r.end {
-        m |= 1 << i;
-        i += 1;
-    }
-    m
-}
 const IP: usize = 0;
 const IV: usize = 3;
 const ITH: usize = 6;
@@ -585,11 +574,10 @@ impl Estimator {
     /// The rows are sparse (one to six non-zero entries), so `P h` runs over those only, and the covariance
     /// update `P - P h h^T P / s` is computed on the upper triangle and mirrored: it stays exactly symmetric.
     fn update(&mut self, h: &[f32; N], innovation: f32, var: f32, gate: bool) -> bool {
-        self.update_considering(h, innovation, var, gate, 0)
+        self.update_considering(h, innovation, var, gate, 0..0)
     }
 
-    /// [`Self::update`] with the states in `consider` (a bit mask over the state's indices, see [`states`])
-    /// taken into account but not estimated (a Schmidt
+    /// [`Self::update`] with the states in `consider` taken into account but not estimated (a Schmidt
     /// "consider" update): their uncertainty enters the innovation's variance and their correlations are
     /// updated, but their estimates and their own covariance are left as they are. For a measurement that
     /// sees a state through a combination it cannot resolve (gravity at rest: the tilt and the
@@ -600,7 +588,7 @@ impl Estimator {
         innovation: f32,
         var: f32,
         gate: bool,
-        consider: u32,
+        consider: core::ops::Range<usize>,
     ) -> bool {
         let mut nz = [0usize; N];
         let mut n_nz = 0;
@@ -635,14 +623,14 @@ impl Estimator {
         let mut dx = [0.0f32; N];
         for i in 0..N {
             gain[i] = ph[i] * inv_s;
-            if consider & (1 << i) == 0 {
+            if !consider.contains(&i) {
                 dx[i] = gain[i] * innovation;
             }
         }
         for i in 0..N {
             for j in i..N {
                 // With the considered states' gain zero (Joseph form), only their own block stays unchanged.
-                if consider & (1 << i) != 0 && consider & (1 << j) != 0 {
+                if consider.contains(&i) && consider.contains(&j) {
                     continue;
                 }
                 let v = self.cov[i][j] - gain[i] * ph[j];
