@@ -499,6 +499,242 @@ mod tests {
         }
     }
 
+    /// The integrals (trims, attitude integrals, altitude integral) as the equations state them, one step from
+    /// `state`, and the demand with them: the oracle for `integrals_follow_their_equations_step_by_step`.
+    fn integrals_by_hand(
+        p: &FlightParams,
+        state: ([f32; 2], [f32; 3], f32),
+        est: &StateEstimate,
+        sp: &Setpoint,
+        dt: f32,
+    ) -> (([f32; 2], [f32; 3], f32), Demand) {
+        let (g, v) = (&p.gains, &p.vehicle);
+        let (mut trim, mut att, mut alt) = state;
+        let (r, th, psi) = (est.attitude.roll, est.attitude.pitch, est.attitude.yaw);
+        let w = est.rates_rad_s;
+        let nav = |x: Vec3| WORLD_FROM_NAV.tmul_vec(x);
+        let e = nav(est.position_m - sp.position_m);
+        let de = nav(est.velocity_m_s - sp.velocity_m_s);
+        let a = nav(sp.accel_m_s2);
+        let (c, s) = (psi.cos(), psi.sin());
+        let fwd = |x: Vec3| c * x.x + s * x.y;
+        let left = |x: Vec3| -s * x.x + c * x.y;
+        // Trims: -k_t e (pitch, forward error) and +k_t e (roll, leftward error), only while the axis's position
+        // and velocity terms are both inside their saturations; bounded.
+        let (pg, rg) = (&g.pitch, &g.roll);
+        if (pg.k[2] * fwd(e)).abs() < pg.b[2] && (pg.k[3] * fwd(de)).abs() < pg.b[3] {
+            trim[1] = (trim[1] - pg.trim_gain * fwd(e) * dt).clamp(-pg.trim_limit_rad, pg.trim_limit_rad);
+        }
+        if (rg.k[2] * left(e)).abs() < rg.b[2] && (rg.k[3] * left(de)).abs() < rg.b[3] {
+            trim[0] = (trim[0] + rg.trim_gain * left(e) * dt).clamp(-rg.trim_limit_rad, rg.trim_limit_rad);
+        }
+        let pitch_ref = (fwd(a) / GRAVITY).atan() + trim[1];
+        let roll_ref = -(left(a) / GRAVITY).atan() + trim[0];
+        let (u_pitch, cmd_pitch, _) = bounded_axis(pg, 1.0, fwd(e), fwd(de), th, w.y, pitch_ref);
+        let (u_roll, cmd_roll, _) = bounded_axis(rg, -1.0, left(e), left(de), r, w.x, roll_ref);
+        let yaw_err = wrap_pi(psi - sp.yaw_rad);
+        // Attitude integrals: minus the gain times the error (angle less the one asked for), bounded.
+        att[0] = (att[0] - rg.attitude_integral_gain * (r - cmd_roll) * dt)
+            .clamp(-rg.attitude_integral_limit_rad_s2, rg.attitude_integral_limit_rad_s2);
+        att[1] = (att[1] - pg.attitude_integral_gain * (th - cmd_pitch) * dt)
+            .clamp(-pg.attitude_integral_limit_rad_s2, pg.attitude_integral_limit_rad_s2);
+        att[2] = (att[2] - g.yaw.integral_gain * yaw_err * dt)
+            .clamp(-g.yaw.integral_limit_rad_s2, g.yaw.integral_limit_rad_s2);
+        // Altitude integral: the height error clamped to 0.3 m, only while the vertical speed is within 0.5 m/s.
+        let ez = est.position_m.z - sp.position_m.z;
+        let dez = est.velocity_m_s.z - sp.velocity_m_s.z;
+        let ga = &g.altitude;
+        if dez.abs() < 0.5 {
+            alt = (alt + ga.integral_gain * ez.clamp(-0.3, 0.3) * dt)
+                .clamp(-ga.integral_limit_m_s2, ga.integral_limit_m_s2);
+        }
+        let u_yaw = sat(-g.yaw.a_psi1 * w.z - g.yaw.a_psi2 * yaw_err + att[2], g.yaw.max_accel_rad_s2);
+        let acc = GRAVITY + sp.accel_m_s2.z - ga.a_z1 * dez - ga.a_z2 * ez - alt;
+        let cos_tilt = (r.cos() * th.cos()).max(ga.min_cos_tilt);
+        let thrust = (v.mass_kg * acc / cos_tilt).clamp(0.0, ga.max_thrust_to_weight * v.mass_kg * GRAVITY);
+        let j = v.inertia_kg_m2;
+        let torque = Vec3::new(j[0] * (u_roll + att[0]), j[1] * (u_pitch + att[1]), j[2] * u_yaw);
+        ((trim, att, alt), Demand { thrust_n: thrust, torque_nm: torque })
+    }
+
+    #[test]
+    fn integrals_follow_their_equations_step_by_step() {
+        // Gains and bounds chosen so that within a few steps every integral reaches its bound, and errors that
+        // cross each anti-windup threshold: 400 runs of 25 random steps, each step checked against the
+        // equations (the state of every integral and the demand it gives).
+        let mut p = FlightParams::paper();
+        p.gains.compensate_gyroscopic = false;
+        for axis in [&mut p.gains.roll, &mut p.gains.pitch] {
+            axis.trim_gain = 1.6;
+            axis.trim_limit_rad = 0.01;
+            axis.attitude_integral_limit_rad_s2 = 0.6;
+        }
+        p.gains.pitch.trim_gain = 1.2;
+        p.gains.pitch.attitude_integral_gain = 60.0;
+        p.gains.yaw.integral_limit_rad_s2 = 0.08;
+        p.gains.altitude.integral_limit_m_s2 = 0.12;
+        p.gains.altitude.integral_gain = 2.0;
+        let mut x = 99u32;
+        let mut rnd = |s: f32| {
+            x = x.wrapping_mul(1_103_515_245).wrapping_add(12345);
+            ((x >> 8) as f32 / (1u32 << 24) as f32 * 2.0 - 1.0) * s
+        };
+        let (mut clamped, mut held) = ([0usize; 6], [0usize; 3]);
+        for run in 0..400 {
+            let mut c = Controller::new(p.gains, p.vehicle);
+            let mut state = ([0.0f32; 2], [0.0f32; 3], 0.0f32);
+            let dt = 0.02 + rnd(0.01).abs();
+            // Each run errs mostly to one side (so that the integrals run into their bounds), with steps that
+            // cross the thresholds: position errors up to 0.5 m (the position terms saturate beyond about
+            // 0.3 m), vertical speed errors up to 0.8 m/s (the altitude integral holds beyond 0.5).
+            let bias = Vec3::new(rnd(0.3), rnd(0.3), rnd(0.3));
+            for step in 0..25 {
+                let mut est = StateEstimate {
+                    position_m: Vec3::new(1.0, 1.3, 0.8) + bias + Vec3::new(rnd(0.2), rnd(0.2), rnd(0.2)),
+                    velocity_m_s: Vec3::new(rnd(0.4), rnd(0.4), rnd(0.8)),
+                    rates_rad_s: Vec3::new(rnd(0.5), rnd(0.5), rnd(0.5)),
+                    ..StateEstimate::default()
+                };
+                est.attitude = geometry::frames::Attitude::new(rnd(0.2), rnd(0.2), rnd(0.4));
+                let sp = Setpoint {
+                    position_m: Vec3::new(1.0, 1.3, 0.8),
+                    velocity_m_s: Vec3::new(rnd(0.2), rnd(0.2), rnd(0.2)),
+                    accel_m_s2: Vec3::new(rnd(0.5), rnd(0.5), rnd(0.5)),
+                    yaw_rad: rnd(0.2),
+                };
+                let (d, status) = c.update(&est, &sp, dt, true, [0.0; 4]);
+                let (next, want) = integrals_by_hand(&p, state, &est, &sp, dt);
+                let ctx = format!("run {run} step {step}");
+                for k in 0..2 {
+                    assert!(
+                        (c.trim[k] - next.0[k]).abs() < 1e-6,
+                        "{ctx}: trim {k} {} {}",
+                        c.trim[k],
+                        next.0[k]
+                    );
+                    assert_eq!(status.trim_rad[k], c.trim[k], "{ctx}");
+                }
+                for k in 0..3 {
+                    let tol = 1e-5 * next.1[k].abs().max(1e-2);
+                    assert!((c.attitude_integral[k] - next.1[k]).abs() < tol, "{ctx}: attitude integral {k}");
+                }
+                assert!((c.altitude_integral - next.2).abs() < 1e-6, "{ctx}: altitude integral");
+                assert!((d.thrust_n - want.thrust_n).abs() < 1e-4 * want.thrust_n.max(1.0), "{ctx}: thrust");
+                let scale = want.torque_nm.norm().max(1e-4);
+                assert!((d.torque_nm - want.torque_nm).norm() < 1e-4 * scale, "{ctx}: torque");
+                // What the random steps covered: each bound reached, each anti-windup hold taken.
+                let bounds = [
+                    p.gains.roll.trim_limit_rad,
+                    p.gains.pitch.trim_limit_rad,
+                    p.gains.roll.attitude_integral_limit_rad_s2,
+                    p.gains.pitch.attitude_integral_limit_rad_s2,
+                    p.gains.yaw.integral_limit_rad_s2,
+                    p.gains.altitude.integral_limit_m_s2,
+                ];
+                let values = [next.0[0], next.0[1], next.1[0], next.1[1], next.1[2], next.2];
+                for k in 0..6 {
+                    clamped[k] += usize::from(values[k].abs() >= bounds[k]);
+                }
+                held[0] += usize::from(next.0[0] == state.0[0]);
+                held[1] += usize::from(next.0[1] == state.0[1]);
+                held[2] += usize::from(next.2 == state.2);
+                state = next;
+            }
+        }
+        assert!(clamped.iter().all(|&n| n > 100), "bounds reached {clamped:?}");
+        assert!(held.iter().all(|&n| n > 100), "anti-windup holds {held:?}");
+    }
+
+    #[test]
+    fn the_thresholds_are_strict() {
+        // A limiter step of exactly the rate passes whole (its own velocity only beyond the rate).
+        let mut l = SetpointLimiter::new();
+        let at = |p: Vec3| Setpoint {
+            position_m: p,
+            velocity_m_s: Vec3::new(0.1, 0.2, 0.3),
+            ..Setpoint::default()
+        };
+        l.limit(&at(Vec3::new(1.0, 2.0, 3.0)), 1.0, 0.5, 0.5);
+        let exact = at(Vec3::new(1.0, 2.5, 3.25));
+        assert_eq!(l.limit(&exact, 1.0, 0.5, 0.5), exact);
+        // A term exactly at its saturation level is not saturated.
+        let g = SaturatedAxisGains {
+            k: [8.0, 4.0, 2.0, 3.0],
+            b: [5.0, 6.0, 1.0, 1.5],
+            ..SaturatedAxisGains::default()
+        };
+        assert!(!bounded_axis(&g, 1.0, 0.0, 0.5, 0.0, 0.0, 0.0).2);
+        assert!(!bounded_axis(&g, 1.0, 0.5, 0.0, 0.0, 0.0, 0.0).2);
+        // The trim integrates only strictly inside the position term's saturation: facing the wall at yaw 0,
+        // a world y error is the forward error exactly.
+        let mut p = FlightParams::paper();
+        p.gains.pitch.k[2] = 2.0;
+        p.gains.pitch.b[2] = 1.0;
+        p.gains.roll.k[2] = 2.0;
+        p.gains.roll.b[2] = 1.0;
+        let sp = Setpoint { position_m: Vec3::new(1.0, 1.5, 0.8), ..Setpoint::default() };
+        for (pos, moves) in [(Vec3::new(1.0, 1.0, 0.8), false), (Vec3::new(1.0, 1.25, 0.8), true)] {
+            let est = StateEstimate {
+                position_m: pos,
+                q: geometry::Quat::from_mat3(&WORLD_FROM_NAV),
+                ..Default::default()
+            };
+            let mut c = Controller::new(p.gains, p.vehicle);
+            let (_, s) = c.update(&est, &sp, 0.01, true, [0.0; 4]);
+            assert_eq!(s.trim_rad[1] != 0.0, moves, "forward error {}: {:?}", s.error_m.x, s.trim_rad);
+        }
+        for (pos, moves) in [(Vec3::new(1.5, 1.5, 0.8), false), (Vec3::new(1.25, 1.5, 0.8), true)] {
+            let est = StateEstimate {
+                position_m: pos,
+                q: geometry::Quat::from_mat3(&WORLD_FROM_NAV),
+                ..Default::default()
+            };
+            let mut c = Controller::new(p.gains, p.vehicle);
+            let (_, s) = c.update(&est, &sp, 0.01, true, [0.0; 4]);
+            assert_eq!(s.trim_rad[0] != 0.0, moves, "left error {}: {:?}", s.error_m.y, s.trim_rad);
+        }
+        // And strictly inside the velocity term's: a forward speed error at exactly b4 / k4 holds it.
+        p.gains.pitch.k[3] = 3.0;
+        p.gains.pitch.b[3] = 1.5;
+        for (vy, moves) in [(0.5, false), (0.25, true)] {
+            let est = StateEstimate {
+                position_m: Vec3::new(1.0, 1.25, 0.8),
+                velocity_m_s: Vec3::new(0.0, vy, 0.0),
+                q: geometry::Quat::from_mat3(&WORLD_FROM_NAV),
+                ..Default::default()
+            };
+            let mut c = Controller::new(p.gains, p.vehicle);
+            let (_, s) = c.update(&est, &sp, 0.01, true, [0.0; 4]);
+            assert_eq!(s.trim_rad[1] != 0.0, moves, "forward speed error {vy}: {:?}", s.trim_rad);
+        }
+        // The altitude integral holds from a vertical speed error of exactly 0.5 m/s.
+        for (vz, moves) in [(-0.5, false), (-0.25, true)] {
+            let est = StateEstimate {
+                position_m: Vec3::new(1.0, 1.5, 0.7),
+                velocity_m_s: Vec3::new(0.0, 0.0, vz),
+                ..Default::default()
+            };
+            let mut c = Controller::new(p.gains, p.vehicle);
+            c.update(&est, &sp, 0.01, true, [0.0; 4]);
+            assert_eq!(c.altitude_integral != 0.0, moves, "vz {vz}");
+        }
+    }
+
+    #[test]
+    fn the_thrust_is_bounded_by_the_thrust_to_weight_ratio() {
+        let p = FlightParams::paper();
+        let mut c = Controller::new(p.gains, p.vehicle);
+        // 5 m below the reference: eq. 30 asks for far more than the bound.
+        let est = StateEstimate { position_m: Vec3::new(1.0, 1.3, -4.2), ..Default::default() };
+        let sp = Setpoint { position_m: Vec3::new(1.0, 1.3, 0.8), ..Setpoint::default() };
+        let (d, _) = c.update(&est, &sp, 0.002, false, [0.0; 4]);
+        let t_max = p.gains.altitude.max_thrust_to_weight * p.vehicle.mass_kg * GRAVITY;
+        assert!((d.thrust_n - t_max).abs() < 1e-5, "{} {t_max}", d.thrust_n);
+        // 5 m above: no thrust (never negative).
+        let est = StateEstimate { position_m: Vec3::new(1.0, 1.3, 5.8), ..Default::default() };
+        assert_eq!(c.update(&est, &sp, 0.002, false, [0.0; 4]).0.thrust_n, 0.0);
+    }
+
     #[test]
     fn the_integrals_grow_against_the_error_and_reset_clears_them() {
         let p = FlightParams::paper();

@@ -13,6 +13,52 @@ use crate::rng::{NormalTable, splitmix64};
 use crate::scenario::Scenario;
 use anyhow::{Result, bail};
 use geometry::{Mat3, Vec3};
+use rayon::prelude::*;
+
+/// Rows per band when a frame is rendered on several threads (60 bands of a 480-row frame: small enough to
+/// balance two to eight threads, large enough that a band's scratch buffers cost nothing).
+const ROW_BAND: usize = 8;
+
+/// The per-row working buffers of [`ForwardRenderer::render`], one set per band of rows.
+struct RowScratch {
+    cov: Vec<f32>,
+    gain: Vec<f32>,
+    idx: Vec<i32>,
+    planes: [Vec<f32>; 3],
+    qplanes: [Vec<u8>; 3],
+    on_wall: Vec<f32>,
+    xs: Vec<f32>,
+    bs: Vec<f32>,
+    tex: Vec<f32>,
+    lit: Vec<f32>,
+    cov_sum: Vec<f32>,
+    paint: [Vec<f32>; 3],
+}
+
+impl RowScratch {
+    /// No buffers (a placeholder while a row holds them; allocates nothing).
+    fn empty() -> Self {
+        Self::new(0)
+    }
+
+    fn new(w: usize) -> Self {
+        let f = || vec![0.0f32; w];
+        Self {
+            cov: f(),
+            gain: f(),
+            idx: vec![0i32; w],
+            planes: [f(), f(), f()],
+            qplanes: [vec![0u8; w], vec![0u8; w], vec![0u8; w]],
+            on_wall: f(),
+            xs: f(),
+            bs: f(),
+            tex: f(),
+            lit: f(),
+            cov_sum: f(),
+            paint: [f(), f(), f()],
+        }
+    }
+}
 
 /// Per-frame settings that tests and flights vary around the scenario's values.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -230,16 +276,6 @@ impl ForwardRenderer {
         let (w, h) = (self.width, self.height);
         let blur = settings.blur_sigma_px > 0.0;
         let mut linear = if blur { vec![0.0f32; 3 * w * h] } else { Vec::new() };
-        let mut cov = vec![0.0f32; w];
-        let mut gain = vec![0.0f32; w];
-        let mut idx = vec![0i32; w];
-        let mut planes = [vec![0.0f32; w], vec![0.0f32; w], vec![0.0f32; w]];
-        let mut qplanes = [vec![0u8; w], vec![0u8; w], vec![0u8; w]];
-        let mut on_wall = vec![0.0f32; w];
-        let mut xs = vec![0.0f32; w];
-        let mut bs = vec![0.0f32; w];
-        let mut tex = vec![0.0f32; w];
-        let mut lit = vec![0.0f32; w];
         let scale = 255.0 * self.exposure;
         let (g0, [gx, gz]) = (settings.light_gain as f32, settings.light_gradient_per_m.map(|v| v as f32));
         let (lcx, lcz) = (self.line_center[0] as f32, self.line_center[2] as f32);
@@ -247,12 +283,30 @@ impl ForwardRenderer {
         let col = |k: usize| [rw[0][k], rw[1][k], rw[2][k]];
         let (ex, ey, ez) = (col(0), col(1), col(2));
         let du = [ex[0] / self.fx, ex[1] / self.fx, ex[2] / self.fx].map(|v| v as f32);
-        let mut cov_sum = vec![0.0f32; w];
-        let mut paint = [vec![0.0f32; w], vec![0.0f32; w], vec![0.0f32; w]];
         let noise = self.noise_block(settings.seed);
         let sigma = settings.noise_sigma as f32 / NOISE_SCALE;
         let st = &self.stack;
-        for v in 0..h {
+        // One row of the image into `px_row` (3 w bytes) or, with blur, `lin_row` (3 w linear values): every
+        // row depends on the scene, the pose and its own slice of the noise only, so bands of rows render on
+        // separate threads with the same result as one thread.
+        let render_row = |v: usize,
+                          sc: &mut RowScratch,
+                          px_row: Option<&mut [u8]>,
+                          lin_row: Option<&mut [f32]>| {
+            let RowScratch {
+                mut cov,
+                mut gain,
+                mut idx,
+                mut planes,
+                mut qplanes,
+                mut on_wall,
+                mut xs,
+                mut bs,
+                mut tex,
+                mut lit,
+                mut cov_sum,
+                mut paint,
+            } = std::mem::replace(sc, RowScratch::empty());
             let yn = (v as f64 - self.cy) / self.fy;
             let xn0 = -self.cx / self.fx;
             let d0 = [0, 1, 2].map(|k| (ex[k] * xn0 + ey[k] * yn + ez[k]) as f32);
@@ -389,21 +443,39 @@ impl ForwardRenderer {
                 }
             }
             // Pass 4: interleave (or keep the linear values for the blur).
-            if blur {
-                let out = &mut linear[3 * v * w..3 * (v + 1) * w];
+            if let Some(out) = lin_row {
                 for (((o, r), g), b) in
                     out.chunks_exact_mut(3).zip(&planes[0]).zip(&planes[1]).zip(&planes[2])
                 {
                     o.copy_from_slice(&[*r, *g, *b]);
                 }
-            } else {
-                let px_row = &mut img.data[3 * v * w..3 * (v + 1) * w];
+            }
+            if let Some(px_row) = px_row {
                 for (((px, r), g), b) in
                     px_row.chunks_exact_mut(3).zip(&qplanes[0]).zip(&qplanes[1]).zip(&qplanes[2])
                 {
                     px.copy_from_slice(&[*r, *g, *b]);
                 }
             }
+            *sc = RowScratch { cov, gain, idx, planes, qplanes, on_wall, xs, bs, tex, lit, cov_sum, paint };
+        };
+        // Bands of rows on the thread pool (a flight's frames are rendered one after another, so the pool's
+        // threads are otherwise idle; in a sweep the runs already fill them and the bands run inline).
+        let band = ROW_BAND.min(h.max(1));
+        if blur {
+            linear.par_chunks_mut(3 * w * band).enumerate().for_each(|(b, rows)| {
+                let mut sc = RowScratch::new(w);
+                for (k, row) in rows.chunks_exact_mut(3 * w).enumerate() {
+                    render_row(b * band + k, &mut sc, None, Some(row));
+                }
+            });
+        } else {
+            img.data.par_chunks_mut(3 * w * band).enumerate().for_each(|(b, rows)| {
+                let mut sc = RowScratch::new(w);
+                for (k, row) in rows.chunks_exact_mut(3 * w).enumerate() {
+                    render_row(b * band + k, &mut sc, Some(row), None);
+                }
+            });
         }
         if blur {
             gaussian_blur_rgb(&mut linear, w, h, settings.blur_sigma_px);
