@@ -32,79 +32,43 @@ use geometry::{Quat, Vec3};
 /// Most blocks a window can hold.
 pub const MAX_WINDOW_BLOCKS: usize = 16;
 
-/// Thresholds of the motion detector.
-#[derive(Clone, Copy, Debug, PartialEq)]
-#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
-#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct MotionParams {
-    /// Length of one block of samples (s).
-    pub block_s: f32,
-    /// Blocks in the window (at most 16).
-    pub window_blocks: u8,
-    /// Still: largest deviation of a block's mean angular rate from the window's mean (rad/s), beyond three
-    /// times the noise of a block mean (measured within the blocks).
-    pub still_gyro_rad_s: f32,
-    /// Still: largest deviation of a block's mean specific force from the window's mean (m/s^2), beyond
-    /// three times the noise of a block mean (measured within the blocks).
-    pub still_accel_m_s2: f32,
-    /// Still: largest difference between the window's mean specific force magnitude and gravity (m/s^2).
-    pub still_norm_m_s2: f32,
-    /// Still: largest window-mean angular rate once the estimated gyro bias is removed (rad/s); a steady
-    /// rotation slower than this is indistinguishable from a bias.
-    pub still_rate_max_rad_s: f32,
-    /// Time constant of the statistics that tell a hand-held from a flying vehicle (s).
-    pub classify_window_s: f32,
-    /// Smallest RMS tilt change over that time that can tell them apart (rad).
-    pub classify_min_tilt_rad: f32,
-    /// Largest RMS spread of the specific force's direction in the body for a flying vehicle (its drag and
-    /// vibration); a hand-held one that shakes more is carried, whatever the world spread.
-    pub classify_body_spread_max: f32,
-}
-
-impl Default for MotionParams {
-    fn default() -> Self {
-        Self {
-            block_s: 0.05,
-            window_blocks: 8,
-            still_gyro_rad_s: 0.02,
-            still_accel_m_s2: 0.3,
-            still_norm_m_s2: 0.5,
-            still_rate_max_rad_s: 0.2,
-            classify_window_s: 2.0,
-            classify_min_tilt_rad: 0.015,
-            classify_body_spread_max: 0.05,
-        }
+params_struct! {
+    /// Thresholds of the motion detector.
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
+    #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
+    #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+    pub struct MotionParams in ["estimator.motion"] {
+        /// Length of one block of samples (s).
+        block_s: f32 = 0.05, { >= 0.005, <= 0.5 } "s";
+        /// Blocks in the window (at most 16, `MAX_WINDOW_BLOCKS`).
+        window_blocks: u8 = 8, { >= 2, <= 16 } "";
+        /// Still: largest deviation of a block's mean angular rate from the window's mean (rad/s), beyond
+        /// three times the noise of a block mean (measured within the blocks).
+        still_gyro_rad_s: f32 = 0.02, { > 0.0, < 10.0 } "rad/s";
+        /// Still: largest deviation of a block's mean specific force from the window's mean (m/s^2), beyond
+        /// three times the noise of a block mean (measured within the blocks).
+        still_accel_m_s2: f32 = 0.3, { > 0.0, < 10.0 } "m/s^2";
+        /// Still: largest difference between the window's mean specific force magnitude and gravity
+        /// (m/s^2).
+        still_norm_m_s2: f32 = 0.5, { > 0.0, < 10.0 } "m/s^2";
+        /// Still: largest window-mean angular rate once the estimated gyro bias is removed (rad/s); a steady
+        /// rotation slower than this is indistinguishable from a bias.
+        still_rate_max_rad_s: f32 = 0.2, { > 0.0, < 10.0 } "rad/s";
+        /// Time constant of the statistics that tell a hand-held from a flying vehicle (s).
+        classify_window_s: f32 = 2.0, { > 0.0, < 10.0 } "s";
+        /// Smallest RMS tilt change over that time that can tell them apart (rad).
+        classify_min_tilt_rad: f32 = 0.015, { > 0.0, < 10.0 } "rad";
+        /// Largest RMS spread of the specific force's direction in the body for a flying vehicle (its drag
+        /// and vibration); a hand-held one that shakes more is carried, whatever the world spread.
+        classify_body_spread_max: f32 = 0.05, { > 0.0, < 10.0 } "";
     }
 }
 
 impl MotionParams {
     pub(crate) fn validate(&self) -> Result<(), crate::params::ParamError> {
-        use crate::params::{ParamError, check};
-        check(
-            self.block_s >= 0.005 && self.block_s <= 0.5,
-            "estimator.motion.block_s",
-            "must lie in [0.005, 0.5] s",
-        )?;
-        check(
-            self.window_blocks >= 2 && self.window_blocks as usize <= MAX_WINDOW_BLOCKS,
-            "estimator.motion.window_blocks",
-            "must lie in 2..=16",
-        )?;
-        for (v, field) in [
-            (self.still_gyro_rad_s, "estimator.motion.still_gyro_rad_s"),
-            (self.still_accel_m_s2, "estimator.motion.still_accel_m_s2"),
-            (self.still_norm_m_s2, "estimator.motion.still_norm_m_s2"),
-            (self.still_rate_max_rad_s, "estimator.motion.still_rate_max_rad_s"),
-            (self.classify_window_s, "estimator.motion.classify_window_s"),
-            (self.classify_min_tilt_rad, "estimator.motion.classify_min_tilt_rad"),
-            (self.classify_body_spread_max, "estimator.motion.classify_body_spread_max"),
-        ] {
-            if !(v.is_finite() && v > 0.0 && v < 10.0) {
-                return Err(ParamError { field, problem: "must lie in (0, 10)" });
-            }
-        }
-        Ok(())
+        const _: () = assert!(MAX_WINDOW_BLOCKS == 16, "the declared range of window_blocks");
+        self.check_declared(0)
     }
 }
 

@@ -13,6 +13,7 @@ pub mod fly;
 pub mod imageio;
 pub mod import;
 pub mod model;
+pub mod params_doc;
 pub mod plot;
 pub mod reference;
 pub mod render;

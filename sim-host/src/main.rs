@@ -49,6 +49,9 @@ enum Command {
     /// Fly many seeded runs of a mission with the scenario drawn from distributions (model error, wind,
     /// faults), in parallel and shardable; `sweep merge` joins the shards.
     Sweep(SweepArgs),
+    /// Print the flight parameters' reference as Markdown (docs/parameters.md): each parameter's dotted name,
+    /// type, default, range, unit and description, from their one declaration.
+    Params,
 }
 
 fn main() -> ExitCode {
@@ -76,6 +79,10 @@ fn main() -> ExitCode {
         Command::Import(ImportCommand::Euroc(a)) => import_euroc(a),
         Command::Import(ImportCommand::Ulog(a)) => import_ulog(a),
         Command::Sweep(a) => sweep(a),
+        Command::Params => sim_host::params_doc::markdown().map(|page| {
+            print!("{page}");
+            ExitCode::SUCCESS
+        }),
     };
     match result {
         Ok(code) => code,
