@@ -410,3 +410,161 @@ fn the_compass_sets_the_heading_only_once_the_tilt_is_known() {
     let s = e.estimate(60_000);
     assert!((s.attitude.yaw - truth.yaw).abs() < 0.1f32.to_radians(), "yaw {}", s.attitude.yaw.to_degrees());
 }
+
+/// A filter with a covariance whose every entry differs (symmetric, positive diagonal), so that reading a
+/// wrong entry or combining them wrongly shows.
+fn with_distinct_covariance() -> Estimator {
+    let mut e = Estimator::new(EstimatorParams::default(), Vec3::new(1.0, 1.3, 0.8));
+    for i in 0..N {
+        for j in 0..N {
+            e.cov[i][j] = if i == j { 0.01 * (i + 1) as f32 } else { 1e-4 * ((i * 7 + j * 7) % 11) as f32 };
+        }
+    }
+    e.q = Quat::from_mat3(&Attitude::new(0.2, -0.3, 0.7).world_from_body());
+    e
+}
+
+#[test]
+fn the_estimate_reports_the_covariance_it_holds() {
+    let e = with_distinct_covariance();
+    let s = e.estimate(42);
+    let sd = |i: usize| e.cov[i][i].sqrt();
+    assert_eq!(s.time_us, 42);
+    assert_eq!(s.position_std_m, Vec3::new(sd(IP), sd(IP + 1), sd(IP + 2)));
+    assert_eq!(s.velocity_std_m_s, Vec3::new(sd(IV), sd(IV + 1), sd(IV + 2)));
+    assert_eq!(s.wind_std_m_s, [sd(IW), sd(IW + 1)]);
+    // Yaw: the attitude error (body frame) projected on the world's vertical, u^T P u with u = R^T z.
+    let r = e.q.to_mat3();
+    let u = [r.m[2][0], r.m[2][1], r.m[2][2]];
+    let mut var = 0.0f64;
+    for a in 0..3 {
+        for b in 0..3 {
+            var += u[a] as f64 * e.cov[ITH + a][ITH + b] as f64 * u[b] as f64;
+        }
+    }
+    assert!((s.yaw_std_rad as f64 - var.sqrt()).abs() < 1e-6, "{} {}", s.yaw_std_rad, var.sqrt());
+    // Tilt: the larger of roll (its variance plus the bias across body y over g^2) and pitch (bias along x).
+    let g2 = (GRAVITY * GRAVITY) as f64;
+    let roll = e.cov[ITH][ITH] as f64 + e.cov[IBA + 1][IBA + 1] as f64 / g2;
+    let pitch = e.cov[ITH + 1][ITH + 1] as f64 + e.cov[IBA][IBA] as f64 / g2;
+    assert!((s.tilt_std_rad as f64 - roll.max(pitch).sqrt()).abs() < 1e-6);
+    assert_eq!(s.tilt_std_rad, e.tilt_std_rad());
+    // With roll's variance the larger one, the roll pair decides.
+    let mut e2 = with_distinct_covariance();
+    e2.cov[ITH][ITH] = 0.5;
+    let roll = 0.5 + e2.cov[IBA + 1][IBA + 1] as f64 / g2;
+    assert!((e2.tilt_std_rad() as f64 - roll.sqrt()).abs() < 1e-6);
+}
+
+#[test]
+fn health_needs_every_state_and_variance_finite() {
+    let e = with_distinct_covariance();
+    assert!(e.is_healthy());
+    let broken: [fn(&mut Estimator); 9] = [
+        |e| e.p.y = f32::NAN,
+        |e| e.v.z = f32::INFINITY,
+        |e| e.q = Quat { w: f32::NAN, ..e.q },
+        |e| e.bg.x = f32::NAN,
+        |e| e.ba.y = f32::NAN,
+        |e| e.w.x = f32::NAN,
+        |e| e.cov[IV][IV] = f32::NAN,
+        |e| e.cov[IW + 1][IW + 1] = -1e-6,
+        |e| e.cov[IP][IP] = f32::INFINITY,
+    ];
+    for (k, f) in broken.iter().enumerate() {
+        let mut b = with_distinct_covariance();
+        f(&mut b);
+        assert!(!b.is_healthy(), "case {k}");
+    }
+}
+
+#[test]
+fn the_history_keeps_one_snapshot_per_period_and_interpolates_between_them() {
+    let mut e = Estimator::new(EstimatorParams::default(), Vec3::ZERO);
+    assert!(e.state_at(0).is_none(), "an empty history");
+    // Snapshots every 1 ms are offered: one per 2 ms is kept (a step within 1 % early counts as due).
+    for k in 0..20u64 {
+        e.p = Vec3::new(k as f32, 0.0, 0.0);
+        e.v = Vec3::new(0.0, 2.0 * k as f32, 0.0);
+        e.push_history(1000 + k * 1000);
+    }
+    assert_eq!(e.hist_len, 10);
+    let times: std::vec::Vec<u64> = (0..e.hist_len).map(|k| e.history[k].time_us).collect();
+    assert_eq!(times, (0..10).map(|k| 1000 + 2000 * k).collect::<std::vec::Vec<_>>());
+    // 1 % early is due, 2 % early is not.
+    let mut e2 = Estimator::new(EstimatorParams::default(), Vec3::ZERO);
+    e2.push_history(10_000);
+    e2.push_history(10_000 + 2000 - 20);
+    assert_eq!(e2.hist_len, 2);
+    e2.push_history(10_000 + 2000 - 20 + 2000 - 40);
+    assert_eq!(e2.hist_len, 2);
+    // Exact times read the snapshot; between two, position and velocity are interpolated linearly and the
+    // attitude is the nearer one's.
+    let s = e.state_at(5000).unwrap();
+    assert_eq!((s.time_us, s.p.x, s.v.y), (5000, 4.0, 8.0));
+    let s = e.state_at(5500).unwrap();
+    assert_eq!(s.time_us, 5500);
+    assert!((s.p.x - 4.5).abs() < 1e-6 && (s.v.y - 9.0).abs() < 1e-6, "{:?} {:?}", s.p, s.v);
+    // Later than the newest, or earlier than the oldest: nothing.
+    assert!(e.state_at(19_001).is_none());
+    assert!(e.state_at(999).is_none());
+    assert!(e.state_at(19_000).is_some() && e.state_at(1000).is_some());
+    // Corrections made since a snapshot was stored apply to it when read.
+    e.corr.p = Vec3::new(0.0, 0.0, 0.25);
+    e.corr.v = Vec3::new(0.5, 0.0, 0.0);
+    let s = e.state_at(5000).unwrap();
+    assert_eq!((s.p.z, s.v.x), (0.25, 0.5));
+}
+
+#[test]
+fn the_history_is_a_ring_of_its_newest_snapshots() {
+    let mut e = Estimator::new(EstimatorParams::default(), Vec3::ZERO);
+    let n = HISTORY_LEN as u64 + 30;
+    for k in 0..n {
+        e.p = Vec3::new(k as f32, 0.0, 0.0);
+        e.q = Quat::from_mat3(&Attitude::new(0.0, 0.0, k as f32 * 0.01).world_from_body());
+        e.push_history(k * SNAPSHOT_EVERY_US);
+    }
+    assert_eq!(e.hist_len, HISTORY_LEN);
+    let oldest = (n - HISTORY_LEN as u64) * SNAPSHOT_EVERY_US;
+    assert!(e.state_at(oldest - 1).is_none());
+    assert_eq!(e.state_at(oldest).unwrap().p.x, (n - HISTORY_LEN as u64) as f32);
+    let newest = (n - 1) * SNAPSHOT_EVERY_US;
+    assert_eq!(e.state_at(newest).unwrap().p.x, (n - 1) as f32);
+    // Between two snapshots: the attitude of the nearer one.
+    let t = 100 * SNAPSHOT_EVERY_US;
+    let yaw = |t_us: u64| Attitude::from_world_from_body(&e.state_at(t_us).unwrap().q.to_mat3()).yaw;
+    assert!((yaw(t + 900) - 1.00).abs() < 1e-5, "{}", yaw(t + 900));
+    assert!((yaw(t + 1100) - 1.01).abs() < 1e-5, "{}", yaw(t + 1100));
+    assert_eq!(e.attitude_at(t).map(|a| (a.yaw - 1.0).abs() < 1e-5), Some(true));
+    let past = e.past_state(t + 1000).unwrap();
+    assert_eq!(past.time_us, t + 1000);
+    assert!((past.position_m.x - 100.5).abs() < 1e-5);
+}
+
+#[test]
+fn a_snapshot_takes_only_the_corrections_made_after_it() {
+    let mut e = Estimator::new(EstimatorParams::default(), Vec3::ZERO);
+    // Corrections made before the snapshot are in its state already.
+    e.corr = Corrections {
+        p: Vec3::new(1.0, 0.0, 0.0),
+        v: Vec3::new(0.0, 2.0, 0.0),
+        th: Vec3::new(0.0, 0.0, 0.3),
+    };
+    e.push_history(1000);
+    e.push_history(3000);
+    e.corr.p.x += 0.25;
+    e.corr.v.y += 0.5;
+    e.corr.th.z += 0.1;
+    let s = e.state_at(1000).unwrap();
+    assert_eq!((s.p.x, s.v.y), (0.25, 0.5));
+    let yaw = Attitude::from_world_from_body(&s.q.to_mat3()).yaw;
+    let yaw0 = Attitude::from_world_from_body(&e.q.to_mat3()).yaw;
+    assert!((wrap_pi(yaw - yaw0) - 0.1).abs() < 1e-5, "{}", wrap_pi(yaw - yaw0));
+    // Exactly midway between two snapshots: the later one's attitude.
+    e.q = Quat::from_mat3(&Attitude::new(0.0, 0.0, 0.5).world_from_body());
+    e.corr = Corrections::default();
+    e.push_history(5000);
+    let mid = Attitude::from_world_from_body(&e.state_at(4000).unwrap().q.to_mat3()).yaw;
+    assert!((mid - 0.5).abs() < 1e-5, "{mid}");
+}
