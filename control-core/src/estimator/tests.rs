@@ -568,3 +568,114 @@ fn a_snapshot_takes_only_the_corrections_made_after_it() {
     let mid = Attitude::from_world_from_body(&e.state_at(4000).unwrap().q.to_mat3()).yaw;
     assert!((mid - 0.5).abs() < 1e-5, "{mid}");
 }
+
+/// The covariance propagation written out densely: `P' = P + dt (F P + P F^T) + dt^2 F P F^T + Q dt`, then the
+/// wind's walk and its cap (row and column scaled), in f64.
+fn propagated_by_hand(e: &Estimator, dt: f64) -> [[f64; N]; N] {
+    let r = e.q.to_mat3();
+    let ra = r.mul_mat(&Mat3::skew(e.last_accel));
+    let w = e.last_omega;
+    let mut f = [[0.0f64; N]; N];
+    for i in 0..3 {
+        f[IP + i][IV + i] = 1.0;
+        for k in 0..3 {
+            f[IV + i][ITH + k] = -ra.m[i][k] as f64;
+            f[IV + i][IBA + k] = -r.m[i][k] as f64;
+        }
+        f[ITH + i][IBG + i] = -1.0;
+    }
+    let (wx, wy, wz) = (w.x as f64, w.y as f64, w.z as f64);
+    let minus_wx = [[0.0, wz, -wy], [-wz, 0.0, wx], [wy, -wx, 0.0]];
+    for i in 0..3 {
+        for k in 0..3 {
+            f[ITH + i][ITH + k] = minus_wx[i][k];
+        }
+    }
+    let p: [[f64; N]; N] = core::array::from_fn(|i| core::array::from_fn(|j| e.cov[i][j] as f64));
+    let mul = |a: &[[f64; N]; N], b: &[[f64; N]; N]| -> [[f64; N]; N] {
+        core::array::from_fn(|i| core::array::from_fn(|j| (0..N).map(|k| a[i][k] * b[k][j]).sum()))
+    };
+    let ft: [[f64; N]; N] = core::array::from_fn(|i| core::array::from_fn(|j| f[j][i]));
+    let fp = mul(&f, &p);
+    let pft = mul(&p, &ft);
+    let fpft = mul(&fp, &ft);
+    let mut out: [[f64; N]; N] = core::array::from_fn(|i| {
+        core::array::from_fn(|j| p[i][j] + dt * (fp[i][j] + pft[i][j]) + dt * dt * fpft[i][j])
+    });
+    let pr = &e.params;
+    for (start, sigma) in
+        [(IV, pr.accel_noise), (ITH, pr.gyro_noise), (IBG, pr.gyro_bias_walk), (IBA, pr.accel_bias_walk)]
+    {
+        for k in 0..3 {
+            out[start + k][start + k] += (sigma as f64).powi(2) * dt;
+        }
+    }
+    let cap = (pr.initial_wind_sigma_m_s as f64).powi(2);
+    for k in 0..2 {
+        let i = IW + k;
+        out[i][i] += (pr.wind_walk_m_s as f64).powi(2) * dt;
+        if out[i][i] > cap {
+            let s = (cap / out[i][i]).sqrt();
+            for j in 0..N {
+                out[i][j] *= s;
+                out[j][i] *= s;
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn the_covariance_propagates_as_the_error_dynamics_state() {
+    for case in 0..3 {
+        let mut e = with_distinct_covariance();
+        e.last_accel = Vec3::new(0.4, -0.7, 9.6);
+        e.last_omega = Vec3::new(0.3, -0.5, 0.8);
+        if case == 1 {
+            // The wind's variance beyond its cap after the walk: scaled back to it.
+            e.params.initial_wind_sigma_m_s = 1.5;
+            let cap = e.params.initial_wind_sigma_m_s * e.params.initial_wind_sigma_m_s;
+            e.cov[IW][IW] = cap * 0.999;
+            e.cov[IW + 1][IW + 1] = cap * 1.5;
+        }
+        if case == 2 {
+            e.q = Quat::from_mat3(&Attitude::new(-0.4, 0.1, -2.0).world_from_body());
+        }
+        let dt = 0.02;
+        e.pending_dt = dt;
+        let want = propagated_by_hand(&e, dt as f64);
+        let len = e.hist_len;
+        e.propagate_covariance(20_000);
+        for i in 0..N {
+            for j in 0..N {
+                let tol = 1e-6 * want[i][j].abs().max(1e-3);
+                assert!(
+                    (e.cov[i][j] as f64 - want[i][j]).abs() < tol,
+                    "case {case}: P[{i}][{j}] {} want {}",
+                    e.cov[i][j],
+                    want[i][j]
+                );
+            }
+        }
+        assert_eq!(e.hist_len, len + 1, "the state is stored");
+        // The step is spent: another call adds nothing.
+        let before = e.cov;
+        e.propagate_covariance(22_000);
+        assert_eq!(e.cov, before);
+    }
+}
+
+#[test]
+fn symmetrising_takes_the_mean_and_floors_the_variances() {
+    let mut e = with_distinct_covariance();
+    e.cov[IP][IV] = 0.3;
+    e.cov[IV][IP] = 0.1;
+    e.cov[IBA][IBA] = 0.0;
+    e.cov[IW][IW] = -1.0;
+    e.cov[IBG][IBG] = f32::NAN;
+    let keep = e.cov[ITH][ITH];
+    e.symmetrise();
+    assert!((e.cov[IP][IV] - 0.2).abs() < 1e-7 && e.cov[IP][IV] == e.cov[IV][IP]);
+    assert_eq!((e.cov[IBA][IBA], e.cov[IW][IW], e.cov[IBG][IBG]), (1e-12, 1e-12, 1e-12));
+    assert_eq!(e.cov[ITH][ITH], keep);
+}
