@@ -679,3 +679,69 @@ fn symmetrising_takes_the_mean_and_floors_the_variances() {
     assert_eq!((e.cov[IBA][IBA], e.cov[IW][IW], e.cov[IBG][IBG]), (1e-12, 1e-12, 1e-12));
     assert_eq!(e.cov[ITH][ITH], keep);
 }
+
+/// The gyro x value the filter integrates for the middle of three samples (x, y, z at 1 ms), and whether it
+/// counted a spike.
+fn cleaned_middle(x: f32, y: f32, z: f32) -> (f32, bool) {
+    let mut e = Estimator::new(EstimatorParams::default(), Vec3::ZERO);
+    for (k, g) in [x, y, z].into_iter().enumerate() {
+        let s = ImuSample {
+            time_us: 1000 * (k as u64 + 1),
+            gyro_rad_s: [g, 0.0, 0.0],
+            accel_m_s2: [0.0, 0.0, GRAVITY],
+        };
+        assert!(e.predict(&s));
+    }
+    (e.last_omega.x, e.counters().imu_spikes == 1)
+}
+
+#[test]
+fn a_spike_is_a_middle_sample_that_stands_out_from_two_agreeing_neighbours() {
+    let lim = SPIKE_GYRO_RAD_S;
+    // Above both, below both: replaced by the neighbours' mean, counted.
+    assert_eq!(cleaned_middle(0.0, 1.0, 0.0), (0.0, true));
+    assert_eq!(cleaned_middle(0.0, -1.0, 0.0), (0.0, true));
+    assert_eq!(cleaned_middle(0.0, 1.0, 0.4), (0.2, true));
+    // Neighbours that disagree by more than the threshold: a real change, passed.
+    assert_eq!(cleaned_middle(0.0, 1.0, 0.6), (1.0, false));
+    assert_eq!(cleaned_middle(0.6, 1.2, 0.0), (1.2, false));
+    // At the thresholds: neighbours exactly `lim` apart agree; a sample exactly `lim` off is no spike.
+    assert_eq!(cleaned_middle(0.0, 1.25, lim), (0.25, true));
+    assert_eq!(cleaned_middle(0.0, lim, 0.0), (lim, false));
+    assert_eq!(cleaned_middle(0.0, 1.0, 1.0 - lim), (1.0, false));
+    // The accelerometer's own threshold, on its own axis.
+    let mut e = Estimator::new(EstimatorParams::default(), Vec3::ZERO);
+    for (k, az) in [GRAVITY, GRAVITY + 2.0 * SPIKE_ACCEL_M_S2, GRAVITY].into_iter().enumerate() {
+        e.predict(&ImuSample {
+            time_us: 1000 * (k as u64 + 1),
+            gyro_rad_s: [0.0; 3],
+            accel_m_s2: [0.0, 0.0, az],
+        });
+    }
+    assert_eq!(e.counters().imu_spikes, 1);
+    assert_eq!(e.last_accel.z, GRAVITY);
+}
+
+#[test]
+fn samples_that_are_not_finite_or_not_newer_are_refused_and_a_held_gyro_is_counted() {
+    let mut e = Estimator::new(EstimatorParams::default(), Vec3::ZERO);
+    let at = |t: u64, g: [f32; 3], a: [f32; 3]| ImuSample { time_us: t, gyro_rad_s: g, accel_m_s2: a };
+    let level = [0.0, 0.0, GRAVITY];
+    assert!(e.predict(&at(1000, [0.0; 3], level)));
+    assert!(!e.predict(&at(2000, [f32::NAN, 0.0, 0.0], level)), "a gyro NaN");
+    assert!(!e.predict(&at(2000, [0.0; 3], [0.0, f32::INFINITY, 9.8])), "an accelerometer infinity");
+    assert!(!e.predict(&at(1000, [0.0; 3], level)), "not newer");
+    assert!(e.predict(&at(2000, [0.0; 3], level)));
+    // A gyro axis held at exactly the same large value on consecutive samples (a saturated sensor) counts;
+    // the same small value does not (a still gyro repeats its quantum), nor does a large one that changes.
+    let big = CLIP_MIN_RATE_RAD_S * 2.0;
+    assert!(e.predict(&at(3000, [0.0, big, 0.0], level)));
+    assert!(e.predict(&at(4000, [0.0, big, 0.0], level)));
+    assert_eq!(e.counters().gyro_clipped, 1);
+    assert!(e.predict(&at(5000, [0.0, big, 0.0], level)));
+    assert_eq!(e.counters().gyro_clipped, 2);
+    assert!(e.predict(&at(6000, [0.0, big * 0.99, 0.0], level)));
+    assert!(e.predict(&at(7000, [0.01, 0.0, 0.0], level)));
+    assert!(e.predict(&at(8000, [0.01, 0.0, 0.0], level)));
+    assert_eq!(e.counters().gyro_clipped, 2);
+}
