@@ -49,7 +49,7 @@ impl Estimator {
     /// Rotates the attitude (and the stored history) about the vertical by `dyaw` and resets the yaw
     /// covariance: used for the first yaw measurement, when the filter's linearisation cannot absorb a large
     /// error.
-    fn reset_yaw(&mut self, dyaw: f32, var: f32) {
+    pub(super) fn reset_yaw(&mut self, dyaw: f32, var: f32) {
         let rz = Quat::from_rotvec(Vec3::new(0.0, 0.0, dyaw));
         self.q = rz.mul(&self.q).normalized();
         for s in self.history.iter_mut() {

@@ -745,3 +745,95 @@ fn samples_that_are_not_finite_or_not_newer_are_refused_and_a_held_gyro_is_count
     assert!(e.predict(&at(8000, [0.01, 0.0, 0.0], level)));
     assert_eq!(e.counters().gyro_clipped, 2);
 }
+
+fn yaw_of(e: &Estimator) -> f32 {
+    Attitude::from_world_from_body(&e.q.to_mat3()).yaw
+}
+
+#[test]
+fn a_yaw_reset_turns_the_state_and_its_history_and_sets_the_yaw_variance_alone() {
+    let mut e = with_distinct_covariance();
+    e.push_history(1000);
+    let (yaw0, hist_yaw0) = (yaw_of(&e), Attitude::from_world_from_body(&e.history[0].q.to_mat3()).yaw);
+    let tilt_var = e.cov[ITH][ITH].max(e.cov[ITH + 1][ITH + 1]);
+    let untouched = e.cov[IV][IBA];
+    e.reset_yaw(0.4, 0.09);
+    assert!((wrap_pi(yaw_of(&e) - yaw0) - 0.4).abs() < 1e-5);
+    let hist_yaw = Attitude::from_world_from_body(&e.history[0].q.to_mat3()).yaw;
+    assert!((wrap_pi(hist_yaw - hist_yaw0) - 0.4).abs() < 1e-5);
+    let up = e.q.to_mat3().m[2];
+    for k in 0..3 {
+        let want = tilt_var + (0.09 - tilt_var) * up[k] * up[k];
+        assert!(
+            (e.cov[ITH + k][ITH + k] - want).abs() < 1e-7,
+            "axis {k}: {} {want}",
+            e.cov[ITH + k][ITH + k]
+        );
+        for i in (0..N).filter(|&i| i != ITH + k) {
+            assert_eq!((e.cov[i][ITH + k], e.cov[ITH + k][i]), (0.0, 0.0), "{i} {k}");
+        }
+    }
+    assert_eq!(e.cov[IV][IBA], untouched);
+    assert!((e.estimate(0).yaw_std_rad - 0.3).abs() < 0.02, "{}", e.estimate(0).yaw_std_rad);
+    assert!(e.yaw_initialised());
+}
+
+/// The body-frame field that reads as compass heading error `raw` (`atan2` of the world field less that of
+/// the levelled reading) at the filter's attitude.
+fn field_reading(e: &Estimator, raw: f32) -> Vec3 {
+    let b = Vec3::from_array(e.params.mag_field_world);
+    let m_w = Mat3::rot_z(-raw).mul_vec(b);
+    e.q.to_mat3().tmul_vec(m_w)
+}
+
+#[test]
+fn the_compass_initialises_then_corrects_and_learns_its_offset_while_vision_holds_the_heading() {
+    let mut p = EstimatorParams::default();
+    p.mag_heading_sigma_rad = 1e-3;
+    let mut e = Estimator::new(p, Vec3::ZERO);
+    e.q = Quat::from_mat3(&Attitude::new(0.1, -0.05, 0.5).world_from_body());
+    assert_eq!(e.fuse_mag(Vec3::new(f32::NAN, 0.0, 0.0)), FuseOutcome::Invalid);
+    assert_eq!(e.fuse_mag(field_reading(&e, 0.3)), FuseOutcome::Stale, "before the tilt is aligned");
+    e.tilt_aligned = true;
+    // A field with (almost) no horizontal part tells no heading; a weak one does.
+    let r = e.q.to_mat3();
+    assert_eq!(e.fuse_mag(r.tmul_vec(Vec3::new(1e-7, 0.0, -0.4))), FuseOutcome::Invalid);
+    let weak = e.clone().fuse_mag(r.tmul_vec(Vec3::new(2e-6, 0.0, -0.4)));
+    assert_ne!(weak, FuseOutcome::Invalid);
+    // The first reading sets the heading.
+    assert_eq!(e.fuse_mag(field_reading(&e, 0.3)), FuseOutcome::Initialised);
+    assert!((wrap_pi(yaw_of(&e) - 0.8)).abs() < 1e-4, "{}", yaw_of(&e));
+    // Then a reading 0.05 rad off (no vision) pulls the yaw almost all the way (its sigma is 1 mrad against
+    // the reset's).
+    e.cov[ITH + 2][ITH + 2] = 0.01;
+    let y = yaw_of(&e);
+    assert_eq!(e.fuse_mag(field_reading(&e, 0.05)), FuseOutcome::Accepted);
+    assert!((wrap_pi(yaw_of(&e) - y) - 0.05).abs() < 2e-3, "{}", wrap_pi(yaw_of(&e) - y));
+    assert_eq!(e.counters().mag_accepted, 1);
+    // Vision holds the heading: the offset is learned from the readings; one beyond mag_consistency_rad is
+    // refused (and still teaches the offset).
+    e.last_imu_us = Some(10_000_000);
+    e.last_vision_yaw_us = Some(10_000_000 - (e.params.mag_vision_window_s * 1e6) as u64);
+    e.cov[ITH + 2][ITH + 2] = 0.01;
+    let y = yaw_of(&e);
+    assert_eq!(
+        e.fuse_mag(field_reading(&e, 0.1)),
+        FuseOutcome::Accepted,
+        "vision exactly window old is fresh"
+    );
+    assert!((e.mag_offset.unwrap() - 0.1).abs() < 1e-5, "{:?}", e.mag_offset);
+    assert!((wrap_pi(yaw_of(&e) - y) - 0.1).abs() < 2e-3);
+    let rate = e.params.mag_offset_learn_rate;
+    let raw = e.params.mag_consistency_rad + 0.05;
+    let before = e.counters().mag_rejected;
+    assert_eq!(e.fuse_mag(field_reading(&e, raw)), FuseOutcome::Rejected);
+    assert_eq!(e.counters().mag_rejected, before + 1);
+    let off = 0.1 + rate * (raw - 0.1);
+    assert!((e.mag_offset.unwrap() - off).abs() < 1e-5, "{:?} {off}", e.mag_offset);
+    // Vision gone stale: the compass holds the heading, less the learned offset.
+    e.last_vision_yaw_us = Some(10_000_000 - (e.params.mag_vision_window_s * 1e6) as u64 - 1000);
+    e.cov[ITH + 2][ITH + 2] = 0.01;
+    let y = yaw_of(&e);
+    assert_eq!(e.fuse_mag(field_reading(&e, off + 0.04)), FuseOutcome::Accepted);
+    assert!((wrap_pi(yaw_of(&e) - y) - 0.04).abs() < 2e-3, "{}", wrap_pi(yaw_of(&e) - y));
+}
