@@ -788,8 +788,7 @@ fn field_reading(e: &Estimator, raw: f32) -> Vec3 {
 
 #[test]
 fn the_compass_initialises_then_corrects_and_learns_its_offset_while_vision_holds_the_heading() {
-    let mut p = EstimatorParams::default();
-    p.mag_heading_sigma_rad = 1e-3;
+    let p = EstimatorParams { mag_heading_sigma_rad: 1e-3, ..EstimatorParams::default() };
     let mut e = Estimator::new(p, Vec3::ZERO);
     e.q = Quat::from_mat3(&Attitude::new(0.1, -0.05, 0.5).world_from_body());
     assert_eq!(e.fuse_mag(Vec3::new(f32::NAN, 0.0, 0.0)), FuseOutcome::Invalid);
