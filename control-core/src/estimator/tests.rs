@@ -836,3 +836,82 @@ fn the_compass_initialises_then_corrects_and_learns_its_offset_while_vision_hold
     assert_eq!(e.fuse_mag(field_reading(&e, off + 0.04)), FuseOutcome::Accepted);
     assert!((wrap_pi(yaw_of(&e) - y) - 0.04).abs() < 2e-3, "{}", wrap_pi(yaw_of(&e) - y));
 }
+
+/// The state correction an update injected, read back from the filter (position, velocity and attitude
+/// through the cumulative corrections, the rest from the states).
+fn injected(before: &Estimator, after: &Estimator) -> [f32; N] {
+    let mut dx = [0.0; N];
+    let d = |a: Vec3, b: Vec3| b - a;
+    let parts = [
+        (IP, d(before.corr.p, after.corr.p)),
+        (IV, d(before.corr.v, after.corr.v)),
+        (ITH, d(before.corr.th, after.corr.th)),
+        (IBG, d(before.bg, after.bg)),
+        (IBA, d(before.ba, after.ba)),
+    ];
+    for (start, v) in parts {
+        dx[start..start + 3].copy_from_slice(&v.to_array());
+    }
+    dx[IW] = after.w.x - before.w.x;
+    dx[IW + 1] = after.w.y - before.w.y;
+    dx
+}
+
+#[test]
+fn a_scalar_update_is_the_kalman_update_with_considered_states_left_alone() {
+    let rows: [&[(usize, f32)]; 3] = [
+        &[(IP + 1, 1.0), (IV + 1, -0.05)],
+        &[(IV, -0.3), (IV + 2, 0.1), (ITH, 0.2), (ITH + 1, -0.4), (IBA, 1.0), (IW, 0.3)],
+        &[(ITH + 2, 0.9), (IBG + 1, 0.5), (IBA + 2, -0.7)],
+    ];
+    for (case, row) in rows.iter().enumerate() {
+        for consider in [0..0, IBA..IBA + 3] {
+            let mut h = [0.0f32; N];
+            for &(k, v) in row.iter() {
+                h[k] = v;
+            }
+            let e0 = with_distinct_covariance();
+            let mut e = e0.clone();
+            let (innov, var) = (0.03, 0.002);
+            assert!(e.update_considering(&h, innov, var, true, consider.clone()));
+            // By hand in f64: s = h P h' + var, K = P h' / s, dx = K innov (0 for considered states),
+            // P' = P - K (P h')' except the considered block, variances floored.
+            let p = |i: usize, j: usize| e0.cov[i][j] as f64;
+            let ph: [f64; N] = core::array::from_fn(|i| (0..N).map(|k| p(i, k) * h[k] as f64).sum());
+            let s = var as f64 + (0..N).map(|k| h[k] as f64 * ph[k]).sum::<f64>();
+            let dx = injected(&e0, &e);
+            for i in 0..N {
+                let want = if consider.contains(&i) { 0.0 } else { ph[i] / s * innov as f64 };
+                assert!(
+                    (dx[i] as f64 - want).abs() < 1e-6,
+                    "case {case} {consider:?}: dx[{i}] {} {want}",
+                    dx[i]
+                );
+                for j in 0..N {
+                    let want = if consider.contains(&i) && consider.contains(&j) {
+                        p(i, j)
+                    } else {
+                        p(i, j) - ph[i] * ph[j] / s
+                    };
+                    let want = if i == j { want.max(1e-12) } else { want };
+                    assert!(
+                        (e.cov[i][j] as f64 - want).abs() < 1e-6 * want.abs().max(1e-3),
+                        "case {case}: P[{i}][{j}]"
+                    );
+                }
+            }
+            // Gated: an innovation beyond gate_sigma standard deviations is refused, nothing changed; the same
+            // without the gate is taken.
+            let big = (e0.params.gate_sigma as f64 * s.sqrt() * 1.01) as f32;
+            let mut g = e0.clone();
+            assert!(!g.update_considering(&h, big, var, true, consider.clone()));
+            assert_eq!((g.cov, g.p, g.v, g.ba), (e0.cov, e0.p, e0.v, e0.ba));
+            let inside = (e0.params.gate_sigma as f64 * s.sqrt() * 0.99) as f32;
+            assert!(e0.clone().update_considering(&h, inside, var, true, consider.clone()));
+            assert!(e0.clone().update_considering(&h, big, var, false, consider.clone()));
+            // No variance to divide by, or no finite innovation: refused.
+            assert!(!e0.clone().update_considering(&h, innov, -(s as f32) - 1.0, false, consider.clone()));
+            assert!(!e0.clone().update_considering(&h, f32::NAN, var, false, consider.clone()));
+        }
+    }
+}
