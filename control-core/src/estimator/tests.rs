@@ -915,3 +915,89 @@ fn a_scalar_update_is_the_kalman_update_with_considered_states_left_alone() {
         }
     }
 }
+
+/// One scalar update by hand (f64): returns the correction and updates `p`.
+fn kalman_by_hand(p: &mut [[f64; N]; N], h: &[f64; N], innov: f64, var: f64) -> [f64; N] {
+    let ph: [f64; N] = core::array::from_fn(|i| (0..N).map(|k| p[i][k] * h[k]).sum());
+    let s = var + (0..N).map(|k| h[k] * ph[k]).sum::<f64>();
+    for i in 0..N {
+        for j in 0..N {
+            p[i][j] -= ph[i] * ph[j] / s;
+        }
+    }
+    core::array::from_fn(|i| ph[i] / s * innov)
+}
+
+#[test]
+fn a_body_velocity_updates_as_its_measurement_model_states() {
+    let mut e = with_distinct_covariance();
+    e.v = Vec3::new(0.3, -0.2, 0.1);
+    e.push_history(1_000_000);
+    // The vehicle has turned since (the current attitude differs from the past one the prediction uses).
+    let past = e.state_at(1_000_000).unwrap();
+    e.q = Quat::from_mat3(&Attitude::new(0.25, -0.3, 0.9).world_from_body());
+    // Small innovations (0.01 m/s), so that the second axis's row, formed after the first axis's correction,
+    // is the first-order one the check below uses.
+    let body_past = past.q.to_mat3().tmul_vec(past.v);
+    let m = BodyVelocity {
+        time_us: 1_000_000,
+        velocity_m_s: [body_past.x + 0.01, body_past.y - 0.008],
+        std_m_s: 0.05,
+    };
+    let e0 = e.clone();
+    assert_eq!(e.fuse_body_velocity(&m, 1_040_000), FuseOutcome::Accepted);
+    assert_eq!(e.counters().flow_accepted, 1);
+    // By hand: for each body axis a, the row v -> (R^T v)_a at the current attitude, theta -> [R^T v]x row a;
+    // the innovation against the past state's body velocity.
+    let mut p: [[f64; N]; N] = core::array::from_fn(|i| core::array::from_fn(|j| e0.cov[i][j] as f64));
+    let rp = past.q.to_mat3();
+    let mut total = [0.0f64; N];
+    // The second axis's row is formed at the state the first axis's correction left.
+    let (mut q, mut v) = (e0.q, e0.v);
+    for axis in 0..2 {
+        let r = q.to_mat3();
+        let mut h = [0.0f64; N];
+        for k in 0..3 {
+            h[IV + k] = r.m[k][axis] as f64;
+        }
+        let vb = r.tmul_vec(v);
+        let sk = Mat3::skew(vb);
+        for k in 0..3 {
+            h[ITH + k] = sk.m[axis][k] as f64;
+        }
+        let pred: f64 = (0..3).map(|k| rp.m[k][axis] as f64 * past.v[k] as f64).sum();
+        let dx = kalman_by_hand(&mut p, &h, m.velocity_m_s[axis] as f64 - pred, 0.05 * 0.05);
+        for i in 0..N {
+            total[i] += dx[i];
+        }
+        let d3 = |k: usize| Vec3::new(dx[k] as f32, dx[k + 1] as f32, dx[k + 2] as f32);
+        v += d3(IV);
+        q = q.mul(&Quat::from_rotvec(d3(ITH))).normalized();
+    }
+    let dx = injected(&e0, &e);
+    for i in 0..N {
+        assert!(
+            (dx[i] as f64 - total[i]).abs() < 2e-3 * total[i].abs().max(1e-3),
+            "dx[{i}] {} {}",
+            dx[i],
+            total[i]
+        );
+    }
+    for i in 0..N {
+        assert!((e.cov[i][i] as f64 - p[i][i]).abs() < 1e-4 * p[i][i], "P[{i}][{i}]");
+    }
+    // Refused: not finite, no standard deviation, from the future, too old; and one outside its gate counts.
+    let mut e = e0.clone();
+    let bad = |v: [f32; 2], sd: f32| BodyVelocity { time_us: 1_000_000, velocity_m_s: v, std_m_s: sd };
+    assert_eq!(e.fuse_body_velocity(&bad([f32::NAN, 0.0], 0.05), 1_040_000), FuseOutcome::Invalid);
+    assert_eq!(e.fuse_body_velocity(&bad([0.0, f32::INFINITY], 0.05), 1_040_000), FuseOutcome::Invalid);
+    assert_eq!(e.fuse_body_velocity(&bad([0.0, 0.0], 0.0), 1_040_000), FuseOutcome::Invalid);
+    assert_eq!(e.fuse_body_velocity(&m, 999_999), FuseOutcome::Stale);
+    let max_age = (e.params.max_fix_age_s * 1e6) as u64;
+    assert_eq!(e.fuse_body_velocity(&m, 1_000_000 + max_age + 1), FuseOutcome::Stale);
+    assert_ne!(e.clone().fuse_body_velocity(&m, 1_000_000 + max_age), FuseOutcome::Stale);
+    assert_eq!(e.cov, e0.cov, "refusals change nothing");
+    let far = BodyVelocity { velocity_m_s: [30.0, 0.0], std_m_s: 0.001, ..m };
+    assert_eq!(e.fuse_body_velocity(&far, 1_040_000), FuseOutcome::Rejected);
+    assert_eq!(e.counters().flow_rejected, 1);
+}
