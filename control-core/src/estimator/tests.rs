@@ -1001,3 +1001,158 @@ fn a_body_velocity_updates_as_its_measurement_model_states() {
     assert_eq!(e.fuse_body_velocity(&far, 1_040_000), FuseOutcome::Rejected);
     assert_eq!(e.counters().flow_rejected, 1);
 }
+
+fn fix_at(t_us: u64, p: Vec3, yaw: f32) -> PositionFix {
+    PositionFix {
+        capture_time_us: t_us,
+        position_m: p,
+        position_std_m: Vec3::new(0.01, 0.002, 0.003),
+        x_observed: true,
+        yaw_rad: yaw,
+        yaw_std_rad: 0.0001,
+    }
+}
+
+#[test]
+fn a_first_fix_sets_the_heading_and_the_position_from_where_the_vehicle_was() {
+    let mut e = with_distinct_covariance();
+    e.push_history(1_000_000);
+    let past = e.state_at(1_000_000).unwrap();
+    // The vehicle moved and turned since the frame was captured.
+    e.p += Vec3::new(0.01, -0.02, 0.005);
+    e.q = Quat::from_rotvec(Vec3::new(0.0, 0.0, 0.05)).mul(&e.q).normalized();
+    let now = 1_040_000;
+    let f = fix_at(1_000_000, Vec3::new(1.5, 1.2, 0.7), 0.2);
+    // Refused before anything: not finite, from the future, too old, older than the history.
+    assert_eq!(e.fuse_fix(&PositionFix { yaw_rad: f32::NAN, ..f }, now), FuseOutcome::Invalid);
+    assert_eq!(
+        e.fuse_fix(&PositionFix { position_m: Vec3::new(f32::NAN, 0.0, 0.0), ..f }, now),
+        FuseOutcome::Invalid
+    );
+    assert_eq!(e.fuse_fix(&f, 999_999), FuseOutcome::Stale);
+    let max_age = (e.params.max_fix_age_s * 1e6) as u64;
+    assert_eq!(e.fuse_fix(&f, 1_000_000 + max_age + 1), FuseOutcome::Stale);
+    assert_eq!(e.fuse_fix(&PositionFix { capture_time_us: 999_000, ..f }, 1_000_000), FuseOutcome::Stale);
+    assert_eq!(e.counters().fixes_stale, 3);
+    let (p_before, yaw_before) = (e.p, yaw_of(&e));
+    let yaw_past = Attitude::from_world_from_body(&past.q.to_mat3()).yaw;
+    assert_eq!(e.fuse_fix(&f, now), FuseOutcome::Initialised);
+    assert!(e.yaw_from_vision());
+    // The heading turned by what the fix says the past heading was off.
+    let turned = wrap_pi(yaw_of(&e) - yaw_before);
+    assert!((turned - wrap_pi(0.2 - yaw_past)).abs() < 1e-4, "{turned}");
+    // x and y: the fix plus the motion since; z left to the fixes that follow; the variances the fix's.
+    let moved = p_before - past.p;
+    assert!((e.p.x - (1.5 + moved.x)).abs() < 1e-6 && (e.p.y - (1.2 + moved.y)).abs() < 1e-6, "{:?}", e.p);
+    assert_eq!(e.p.z, p_before.z);
+    assert!((e.cov[IP][IP] - 1e-4).abs() < 1e-9);
+    let floor = e.params.vision_position_floor_m;
+    assert!((e.cov[IP + 1][IP + 1] - floor * floor).abs() < 1e-9, "the floor under a smaller std");
+    assert_eq!(e.counters().fixes_accepted, 1);
+    // An unobserved x stays uninitialised.
+    let mut e2 = with_distinct_covariance();
+    e2.push_history(1_000_000);
+    let px = e2.p.x;
+    e2.fuse_fix(&PositionFix { x_observed: false, ..f }, now);
+    assert_eq!(e2.p.x, px);
+    assert!((e2.p.y - 1.2).abs() < 1e-6);
+}
+
+#[test]
+fn a_fix_updates_heading_then_each_axis_against_the_past_state() {
+    let mut e = with_distinct_covariance();
+    e.yaw_from_vision = true;
+    e.xy_initialised = [true; 2];
+    e.v = Vec3::new(0.2, -0.1, 0.05);
+    e.push_history(1_000_000);
+    let past = e.state_at(1_000_000).unwrap();
+    e.p += Vec3::new(0.008, -0.004, 0.002);
+    let age = 0.04f32;
+    let yaw_past = Attitude::from_world_from_body(&past.q.to_mat3()).yaw;
+    let f = PositionFix {
+        position_std_m: Vec3::new(0.03, 0.02, 0.04),
+        yaw_std_rad: 0.05,
+        ..fix_at(1_000_000, past.p + Vec3::new(0.004, -0.003, 0.002), yaw_past + 0.01)
+    };
+    let e0 = e.clone();
+    assert_eq!(e.fuse_fix(&f, 1_040_000), FuseOutcome::Accepted);
+    // By hand: the yaw row at the current attitude, then x, y, z with rows p - age v, each innovation against
+    // the past position plus what the earlier axes' updates moved it.
+    let mut p: [[f64; N]; N] = core::array::from_fn(|i| core::array::from_fn(|j| e0.cov[i][j] as f64));
+    let r = e0.q.to_mat3();
+    let mut h = [0.0f64; N];
+    for k in 0..3 {
+        h[ITH + k] = r.m[2][k] as f64;
+    }
+    let mut total = kalman_by_hand(&mut p, &h, 0.01, 0.05 * 0.05);
+    let mut corr = [0.0f64; 3];
+    for axis in 0..3 {
+        let mut h = [0.0f64; N];
+        h[IP + axis] = 1.0;
+        h[IV + axis] = -age as f64;
+        let innov = f.position_m[axis] as f64 - (past.p[axis] as f64 + corr[axis]);
+        let sd = f.position_std_m[axis] as f64;
+        let dx = kalman_by_hand(&mut p, &h, innov, sd * sd);
+        for k in 0..3 {
+            corr[k] += dx[IP + k] - dx[IV + k] * age as f64;
+        }
+        for i in 0..N {
+            total[i] += dx[i];
+        }
+    }
+    let dx = injected(&e0, &e);
+    for i in 0..N {
+        assert!(
+            (dx[i] as f64 - total[i]).abs() < 1e-4 * total[i].abs().max(1e-4),
+            "dx[{i}] {} {}",
+            dx[i],
+            total[i]
+        );
+    }
+    for i in 0..N {
+        assert!((e.cov[i][i] as f64 - p[i][i]).abs() < 1e-4 * p[i][i], "P[{i}][{i}]");
+    }
+    assert_eq!(e.counters().fixes_accepted, 1);
+}
+
+#[test]
+fn fixes_refused_in_a_row_reset_the_position_and_reopen_the_imu_states() {
+    let mut e = with_distinct_covariance();
+    e.yaw_from_vision = true;
+    e.xy_initialised = [true; 2];
+    e.push_history(1_000_000);
+    let yaw_past = yaw_of(&e);
+    let far = PositionFix {
+        position_std_m: Vec3::new(0.01, 0.01, 0.01),
+        ..fix_at(1_000_000, e.p + Vec3::new(2.0, 0.0, 0.0), yaw_past)
+    };
+    let n = e.params.vision_position_reset_after as u32;
+    for k in 1..n {
+        assert_eq!(e.fuse_fix(&far, 1_010_000), FuseOutcome::Rejected);
+        assert_eq!(e.counters().fixes_rejected, k);
+        assert_eq!(e.counters().position_resets, 0);
+    }
+    e.fuse_fix(&far, 1_010_000);
+    assert_eq!(e.counters().position_resets, 1);
+    assert!((e.p.x - far.position_m.x).abs() < 1e-5, "{:?}", e.p);
+    let p = e.params;
+    let near = |a: f32, b: f32| (a - b).abs() < 1e-6 * b.max(1e-6);
+    assert!(near(e.cov[IV][IV], p.reset_velocity_sigma_m_s * p.reset_velocity_sigma_m_s));
+    assert!(near(e.cov[ITH][ITH], p.initial_tilt_sigma_rad * p.initial_tilt_sigma_rad));
+    assert!(near(e.cov[IBG + 1][IBG + 1], p.initial_gyro_bias_sigma_rad_s * p.initial_gyro_bias_sigma_rad_s));
+    assert!(near(e.cov[IBA + 2][IBA + 2], p.initial_accel_bias_sigma_m_s2 * p.initial_accel_bias_sigma_m_s2));
+    // A yaw refused in a row resets the heading to vision's.
+    let mut e = with_distinct_covariance();
+    e.yaw_from_vision = true;
+    e.xy_initialised = [true; 2];
+    e.push_history(1_000_000);
+    let off = PositionFix { yaw_std_rad: 0.001, ..fix_at(1_000_000, e.p, wrap_pi(yaw_of(&e) + 2.5)) };
+    let n = e.params.vision_yaw_reset_after as u32;
+    for k in 1..n {
+        e.fuse_fix(&off, 1_010_000);
+        assert_eq!(e.counters().vision_yaw_rejected, k);
+    }
+    e.fuse_fix(&off, 1_010_000);
+    assert_eq!(e.counters().yaw_resets, 1);
+    assert!((wrap_pi(yaw_of(&e) - off.yaw_rad)).abs() < 1e-3, "{}", yaw_of(&e));
+}
