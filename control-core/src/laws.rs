@@ -14,6 +14,11 @@ use crate::params::{ControlGains, SaturatedAxisGains, VehicleParams};
 use geometry::frames::WORLD_FROM_NAV;
 use geometry::{Vec3, clamp_finite, wrap_pi};
 
+/// The altitude integral takes the height error clamped to this (m).
+pub const ALTITUDE_INTEGRAL_ERROR_M: f32 = 0.3;
+/// The altitude integral holds while the vertical speed error is this or more (m/s).
+pub const ALTITUDE_INTEGRAL_HOLD_SPEED_M_S: f32 = 0.5;
+
 /// Saturation function `sigma_b(x) = clamp(x, -b, b)` (a NaN input gives 0).
 pub fn sat(x: f32, b: f32) -> f32 {
     if x.is_nan() { 0.0 } else { clamp_finite(x, -b, b) }
@@ -248,11 +253,13 @@ impl Controller {
         // Altitude (eq. 30) with the bounded integral.
         let a = &g.altitude;
         let (ez, dez) = (e_w.z, de_w.z);
-        // Anti-windup: the error integrated at most +-0.3 m (a large offset, such as a heavier vehicle's, is
-        // still integrated out, at a bounded rate), and not while the vertical speed is far off.
-        if integrate && dt > 0.0 && dez.abs() < 0.5 {
+        // Anti-windup: the error integrated at most +-ALTITUDE_INTEGRAL_ERROR_M (a large offset, such as a
+        // heavier vehicle's, is still integrated out, at a bounded rate), and not while the vertical speed is far
+        // off.
+        if integrate && dt > 0.0 && dez.abs() < ALTITUDE_INTEGRAL_HOLD_SPEED_M_S {
+            let e = clamp_finite(ez, -ALTITUDE_INTEGRAL_ERROR_M, ALTITUDE_INTEGRAL_ERROR_M);
             self.altitude_integral = clamp_finite(
-                self.altitude_integral + a.integral_gain * clamp_finite(ez, -0.3, 0.3) * dt,
+                self.altitude_integral + a.integral_gain * e * dt,
                 -a.integral_limit_m_s2,
                 a.integral_limit_m_s2,
             );

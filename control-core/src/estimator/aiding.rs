@@ -401,7 +401,7 @@ impl Estimator {
     /// bias are one unobservable combination, and letting this update move the bias made the pair drift
     /// along it (0.2 deg of pitch in a minute at rest on PX4's `sample.ulg`); the bias is learned from the
     /// velocity's dynamics instead (vision fixes, flow, zero velocity at rest, rotations between rests).
-    fn fuse_gravity(&mut self, f: Vec3, sigma: f32, gate: bool) -> bool {
+    pub(super) fn fuse_gravity(&mut self, f: Vec3, sigma: f32, gate: bool) -> bool {
         if !f.is_finite() || (f.norm() - GRAVITY).abs() > 3.0 * sigma.max(0.3) {
             return false;
         }

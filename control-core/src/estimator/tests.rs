@@ -709,6 +709,10 @@ fn a_spike_is_a_middle_sample_that_stands_out_from_two_agreeing_neighbours() {
     assert_eq!(cleaned_middle(0.0, 1.25, lim), (0.25, true));
     assert_eq!(cleaned_middle(0.0, lim, 0.0), (lim, false));
     assert_eq!(cleaned_middle(0.0, 1.0, 1.0 - lim), (1.0, false));
+    // Measured from each neighbour: standing out from one only is no spike.
+    assert_eq!(cleaned_middle(0.3, 0.75, 0.0), (0.75, false));
+    assert_eq!(cleaned_middle(0.0, 0.75, 0.3), (0.75, false));
+    assert_eq!(cleaned_middle(-0.3, -0.75, 0.0), (-0.75, false));
     // The accelerometer's own threshold, on its own axis.
     let mut e = Estimator::new(EstimatorParams::default(), Vec3::ZERO);
     for (k, az) in [GRAVITY, GRAVITY + 2.0 * SPIKE_ACCEL_M_S2, GRAVITY].into_iter().enumerate() {
@@ -1155,4 +1159,61 @@ fn fixes_refused_in_a_row_reset_the_position_and_reopen_the_imu_states() {
     e.fuse_fix(&off, 1_010_000);
     assert_eq!(e.counters().yaw_resets, 1);
     assert!((wrap_pi(yaw_of(&e) - off.yaw_rad)).abs() < 1e-3, "{}", yaw_of(&e));
+}
+
+#[test]
+fn gravity_corrects_the_tilt_across_the_predicted_vertical() {
+    let mut e = with_distinct_covariance();
+    e.ba = Vec3::new(0.02, -0.03, 0.01);
+    let r = e.q.to_mat3();
+    let g_b = r.tmul_vec(Vec3::new(0.0, 0.0, GRAVITY));
+    // A specific force slightly off the predicted gravity (plus bias): the tilt is corrected toward it.
+    let f = g_b + e.ba + Vec3::new(0.015, -0.01, 0.02);
+    let e0 = e.clone();
+    assert!(e.fuse_gravity(f, 0.1, true));
+    // By hand: two rows across the predicted vertical `n` (e1 = n x X, or n x Y near X; e2 = n x e1),
+    // d(e.f)/dtheta = [g_b]x^T e, innovation e.(f - g_b - b_a), variance sigma^2 each.
+    let up = g_b * (1.0 / GRAVITY);
+    let e1 = up.cross(if up.x.abs() < 0.8 { Vec3::X } else { Vec3::Y }).normalized().unwrap();
+    let e2 = up.cross(e1);
+    let mut p: [[f64; N]; N] = core::array::from_fn(|i| core::array::from_fn(|j| e0.cov[i][j] as f64));
+    let mut total = [0.0f64; N];
+    // Each row is formed at the state the previous one left (attitude and bias).
+    let (mut q, mut ba) = (e0.q, e0.ba);
+    for d in [e1, e2] {
+        let g_b = q.to_mat3().tmul_vec(Vec3::new(0.0, 0.0, GRAVITY));
+        let row = Mat3::skew(g_b).tmul_vec(d);
+        let mut h = [0.0f64; N];
+        for k in 0..3 {
+            h[ITH + k] = row[k] as f64;
+        }
+        let innov = d.dot(f - g_b - ba) as f64;
+        let dx = kalman_by_hand(&mut p, &h, innov, 0.01);
+        for i in 0..N {
+            total[i] += dx[i];
+        }
+        let d3 = |k: usize| Vec3::new(dx[k] as f32, dx[k + 1] as f32, dx[k + 2] as f32);
+        q = q.mul(&Quat::from_rotvec(d3(ITH))).normalized();
+        ba += d3(IBA);
+    }
+    let dx = injected(&e0, &e);
+    for i in 0..N {
+        assert!(
+            (dx[i] as f64 - total[i]).abs() < 2e-3 * total[i].abs().max(1e-4),
+            "dx[{i}] {} {}",
+            dx[i],
+            total[i]
+        );
+    }
+    // Refused: a force whose magnitude is far from gravity (more than 3 sigma, at least 0.9 m/s^2), or not
+    // finite; nothing changes.
+    let mut e = e0.clone();
+    assert!(!e.fuse_gravity(f * 1.2, 0.1, true));
+    assert!(!e.fuse_gravity(Vec3::new(f32::NAN, 0.0, 9.8), 0.1, true));
+    assert_eq!(e.cov, e0.cov);
+    let n = f.normalized().unwrap();
+    assert!(e.clone().fuse_gravity(n * (GRAVITY + 0.85), 0.1, false), "within 0.9 m/s^2");
+    assert!(!e.clone().fuse_gravity(n * (GRAVITY - 0.95), 0.1, false));
+    assert!(e.clone().fuse_gravity(n * (GRAVITY + 2.9), 1.0, false), "within 3 sigma");
+    assert!(!e.clone().fuse_gravity(n * (GRAVITY + 3.1), 1.0, false));
 }
