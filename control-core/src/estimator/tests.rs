@@ -1217,3 +1217,59 @@ fn gravity_corrects_the_tilt_across_the_predicted_vertical() {
     assert!(e.clone().fuse_gravity(n * (GRAVITY + 2.9), 1.0, false), "within 3 sigma");
     assert!(!e.clone().fuse_gravity(n * (GRAVITY + 3.1), 1.0, false));
 }
+
+fn still_report(gyro: Vec3, accel: Vec3, window: bool) -> MotionReport {
+    MotionReport {
+        block: crate::motion::Block { end_us: 50_000, samples: 50, mean_gyro: gyro, mean_accel: accel },
+        class: MotionClass::Still,
+        still_window: window.then_some((gyro, accel)),
+    }
+}
+
+#[test]
+fn at_rest_the_first_window_sets_the_gyro_bias_and_each_block_holds_velocity_height_and_rate() {
+    let p = EstimatorParams::default();
+    let mut e = Estimator::new(p, Vec3::new(1.0, 1.3, 0.1));
+    e.v = Vec3::new(0.1, -0.2, 0.05);
+    let gyro = Vec3::new(0.01, -0.02, 0.005);
+    let (pv, pz) = (e.cov[IV][IV], e.cov[IP + 2][IP + 2]);
+    e.motion_report = Some(still_report(gyro, Vec3::new(0.0, 0.0, GRAVITY), true));
+    assert_eq!(
+        e.fuse_accel(&AccelContext { airborne: Some(false), pad_height_m: Some(0.06) }),
+        Some(AccelAiding::Still)
+    );
+    assert_eq!(e.counters().still_blocks, 1);
+    // The gyro bias: the window's mean rate, with the window's variance (the per-block sigma over the blocks),
+    // then the block's own rate as a measurement of it (the same value: no change, the variance combined).
+    assert_eq!(e.bg, gyro);
+    let blocks = p.motion.window_blocks as f32;
+    let bv = p.still_gyro_sigma_rad_s * p.still_gyro_sigma_rad_s / blocks;
+    let gv = p.still_gyro_sigma_rad_s * p.still_gyro_sigma_rad_s;
+    for k in 0..3 {
+        let want = bv * gv / (bv + gv);
+        assert!(
+            (e.cov[IBG + k][IBG + k] - want).abs() < 1e-6 * want,
+            "{k}: {} {want}",
+            e.cov[IBG + k][IBG + k]
+        );
+    }
+    // Zero velocity, each axis (uncorrelated in a new filter): v' = v vv / (P + vv).
+    let vv = p.still_velocity_sigma_m_s * p.still_velocity_sigma_m_s;
+    for (k, v0) in [0.1f32, -0.2, 0.05].into_iter().enumerate() {
+        let want = v0 * vv / (pv + vv);
+        assert!((e.v[k] - want).abs() < 1e-6, "v[{k}] {} {want}", e.v[k]);
+    }
+    // The pad's height.
+    let hv = p.ground_height_sigma_m * p.ground_height_sigma_m;
+    let want = 0.1 + pz / (pz + hv) * (0.06 - 0.1);
+    assert!((e.p.z - want).abs() < 1e-6, "{} {want}", e.p.z);
+    // The next window does not reset the bias: a block whose rate differs moves it by the update's gain.
+    let bg0 = e.bg;
+    let pb = e.cov[IBG][IBG];
+    e.motion_report =
+        Some(still_report(gyro + Vec3::new(0.004, 0.0, 0.0), Vec3::new(0.0, 0.0, GRAVITY), true));
+    e.fuse_accel(&AccelContext { airborne: Some(false), pad_height_m: None });
+    let want = bg0.x + pb / (pb + gv) * 0.004;
+    assert!((e.bg.x - want).abs() < 1e-6, "{} {want}", e.bg.x);
+    assert_eq!(e.counters().still_blocks, 2);
+}
