@@ -1273,3 +1273,104 @@ fn at_rest_the_first_window_sets_the_gyro_bias_and_each_block_holds_velocity_hei
     assert!((e.bg.x - want).abs() < 1e-6, "{} {want}", e.bg.x);
     assert_eq!(e.counters().still_blocks, 2);
 }
+
+/// [`kalman_by_hand`] with the states in `consider` taken into account but not corrected (their gain zero,
+/// their own covariance block unchanged).
+fn kalman_considering(
+    p: &mut [[f64; N]; N],
+    h: &[f64; N],
+    innov: f64,
+    var: f64,
+    consider: core::ops::Range<usize>,
+) -> [f64; N] {
+    let ph: [f64; N] = core::array::from_fn(|i| (0..N).map(|k| p[i][k] * h[k]).sum());
+    let s = var + (0..N).map(|k| h[k] * ph[k]).sum::<f64>();
+    for i in 0..N {
+        for j in 0..N {
+            if !(consider.contains(&i) && consider.contains(&j)) {
+                p[i][j] -= ph[i] * ph[j] / s;
+            }
+        }
+    }
+    core::array::from_fn(|i| if consider.contains(&i) { 0.0 } else { ph[i] / s * innov })
+}
+
+#[test]
+fn the_drag_model_updates_across_the_thrust_axis_with_the_bias_considered() {
+    let mut e = with_distinct_covariance();
+    e.v = Vec3::new(0.4, -0.3, 0.05);
+    e.w = Vec3::new(0.2, 0.1, 0.0);
+    e.ba = Vec3::new(0.03, -0.02, 0.01);
+    let k = e.params.drag_coeff_per_s;
+    let r = e.q.to_mat3();
+    let vb = r.tmul_vec(e.v - e.w);
+    // The measured specific force: thrust along body z, the modelled drag across it plus the bias, a little off.
+    let f = Vec3::new(0.0, 0.0, 9.6) + vb * (-k) + e.ba + Vec3::new(0.02, -0.015, 0.0);
+    let f = Vec3::new(f.x, f.y, 9.6);
+    let e0 = e.clone();
+    let report = MotionReport {
+        block: crate::motion::Block { end_us: 50_000, samples: 50, mean_gyro: Vec3::ZERO, mean_accel: f },
+        class: MotionClass::ThrustBorne,
+        still_window: None,
+    };
+    e.motion_report = Some(report);
+    assert_eq!(
+        e.fuse_accel(&AccelContext { airborne: Some(true), pad_height_m: None }),
+        Some(AccelAiding::Drag)
+    );
+    assert_eq!(e.counters().drag_blocks, 1);
+    // By hand: rows e1 = z x X = y and e2 = z x y = -x of the body; f_perp = -k R^T (v - w) + b_a.
+    let mut p: [[f64; N]; N] = core::array::from_fn(|i| core::array::from_fn(|j| e0.cov[i][j] as f64));
+    let mut total = [0.0f64; N];
+    let (mut q, mut v, mut w) = (e0.q, e0.v, e0.w);
+    for d in [Vec3::Y, -Vec3::X] {
+        let r = q.to_mat3();
+        let vb = r.tmul_vec(v - w);
+        let row_v = r.mul_vec(d) * (-k);
+        let row_th = Mat3::skew(vb).tmul_vec(d) * (-k);
+        let mut h = [0.0f64; N];
+        for i in 0..3 {
+            h[IV + i] = row_v[i] as f64;
+            h[ITH + i] = row_th[i] as f64;
+            h[IBA + i] = d[i] as f64;
+        }
+        h[IW] = -row_v.x as f64;
+        h[IW + 1] = -row_v.y as f64;
+        let innov = (d.dot(f) - d.dot(vb * (-k) + e0.ba)) as f64;
+        let s = e0.params.drag_sigma_m_s2 as f64;
+        let dx = kalman_considering(&mut p, &h, innov, s * s, IBA..IBA + 3);
+        for i in 0..N {
+            total[i] += dx[i];
+        }
+        let d3 = |k: usize| Vec3::new(dx[k] as f32, dx[k + 1] as f32, dx[k + 2] as f32);
+        q = q.mul(&Quat::from_rotvec(d3(ITH))).normalized();
+        v += d3(IV);
+        w += Vec3::new(dx[IW] as f32, dx[IW + 1] as f32, 0.0);
+    }
+    let dx = injected(&e0, &e);
+    for i in 0..N {
+        assert!(
+            (dx[i] as f64 - total[i]).abs() < 1e-4 * total[i].abs().max(1e-4),
+            "dx[{i}] {} {}",
+            dx[i],
+            total[i]
+        );
+    }
+    assert_eq!(e.ba, e0.ba, "the bias is considered, not corrected");
+    // With the model off (coefficient 0) nothing is fused.
+    let mut off = e0.clone();
+    off.params.drag_coeff_per_s = 0.0;
+    off.motion_report = Some(report);
+    assert_eq!(
+        off.fuse_accel(&AccelContext { airborne: Some(true), pad_height_m: None }),
+        Some(AccelAiding::None)
+    );
+    assert_eq!(off.cov, e0.cov);
+    // Not known to fly, but the block says thrust-borne: the drag model too.
+    let mut unknown = e0.clone();
+    unknown.motion_report = Some(report);
+    assert_eq!(
+        unknown.fuse_accel(&AccelContext { airborne: None, pad_height_m: None }),
+        Some(AccelAiding::Drag)
+    );
+}
