@@ -1374,3 +1374,52 @@ fn the_drag_model_updates_across_the_thrust_axis_with_the_bias_considered() {
         Some(AccelAiding::Drag)
     );
 }
+
+#[test]
+fn carried_by_hand_gravity_is_fused_loosely_and_a_bad_block_is_counted() {
+    let mut e = with_distinct_covariance();
+    let report = |f: Vec3| MotionReport {
+        block: crate::motion::Block { end_us: 50_000, samples: 50, mean_gyro: Vec3::ZERO, mean_accel: f },
+        class: MotionClass::GravityDominated,
+        still_window: None,
+    };
+    let g_b = e.q.to_mat3().tmul_vec(Vec3::new(0.0, 0.0, GRAVITY));
+    e.motion_report = Some(report(g_b + Vec3::new(0.3, 0.0, 0.0)));
+    let ctx = AccelContext { airborne: None, pad_height_m: None };
+    let before = e.cov;
+    assert_eq!(e.fuse_accel(&ctx), Some(AccelAiding::Gravity));
+    assert_eq!(e.counters().accel_rejected, 0);
+    assert_ne!(e.cov, before);
+    // A block far from gravity's magnitude (beyond 3 handheld sigmas) is refused and counted.
+    e.motion_report = Some(report(g_b * 2.0));
+    assert_eq!(e.fuse_accel(&ctx), Some(AccelAiding::Gravity));
+    assert_eq!(e.counters().accel_rejected, 1);
+    // No block finished: nothing.
+    assert_eq!(e.fuse_accel(&ctx), None);
+}
+
+#[test]
+fn the_tilt_alignment_reads_roll_and_pitch_from_one_force_and_keeps_the_yaw() {
+    let mut e = with_distinct_covariance();
+    let yaw = yaw_of(&e);
+    let att = Attitude::new(0.2, -0.15, yaw);
+    let f = att.world_from_body().tmul_vec(Vec3::new(0.0, 0.0, GRAVITY));
+    e.align_tilt(f);
+    let got = Attitude::from_world_from_body(&e.q.to_mat3());
+    assert!((got.roll - 0.2).abs() < 1e-5 && (got.pitch + 0.15).abs() < 1e-5, "{got:?}");
+    assert!((wrap_pi(got.yaw - yaw)).abs() < 1e-5);
+    let var = e.params.initial_tilt_sigma_rad * e.params.initial_tilt_sigma_rad;
+    assert_eq!((e.cov[ITH][ITH], e.cov[ITH + 1][ITH + 1]), (var, var));
+    assert_eq!((e.cov[ITH][IV], e.cov[IBA][ITH + 1]), (0.0, 0.0));
+    // A force too far from gravity (more than 2 m/s^2), or not finite, changes nothing.
+    for bad in [f * 1.25, f * 0.75, Vec3::new(f32::NAN, 0.0, 9.8)] {
+        let mut b = with_distinct_covariance();
+        let (q, cov) = (b.q, b.cov);
+        b.align_tilt(bad);
+        assert_eq!((b.q, b.cov), (q, cov), "{bad:?}");
+    }
+    let mut near = with_distinct_covariance();
+    let q0 = near.q;
+    near.align_tilt(f * (1.0 + 1.9 / GRAVITY));
+    assert_ne!(near.q, q0, "within 2 m/s^2");
+}
