@@ -104,11 +104,11 @@ pub fn check_declared<T: Ranged>(v: &T, spec: &Check) -> Result<(), ParamError> 
 /// ```
 ///
 /// and the structure names where it sits in the parameter tree (`in ["vehicle"]`; a structure used twice,
-/// such as the roll and pitch gains, lists both places).
+/// such as the roll and pitch gains, lists both places; the root of the tree is `in [""]`).
 macro_rules! params_struct {
     (
         $(#[$meta:meta])*
-        pub struct $name:ident in [$($prefix:literal),+ $(,)?] $body:tt
+        pub struct $name:ident in [$($prefix:tt),+ $(,)?] $body:tt
     ) => {
         params_struct!(@struct [$(#[$meta])*] $name $body);
         impl $name {
@@ -128,39 +128,6 @@ macro_rules! params_struct {
             }
         }
     };
-    (
-        $(#[$meta:meta])*
-        pub struct $name:ident at_root $body:tt
-    ) => {
-        params_struct!(@struct [$(#[$meta])*] $name $body);
-        impl $name {
-            /// The declared parameters of this structure (the root of the tree: names without a prefix).
-            pub const SPECS: &'static [&'static [$crate::declare::ParamSpec]] = &[params_struct!(@specs_root $body)];
-
-            const CHECKS: &'static [&'static [$crate::declare::Check]] = &[params_struct!(@checks_root $body)];
-
-            #[allow(unused_assignments)]
-            fn check_declared(&self, instance: usize) -> Result<(), $crate::params::ParamError> {
-                params_struct!(@check self Self::CHECKS[instance], $body);
-                Ok(())
-            }
-        }
-    };
-    (@specs_root {
-        $( $(#[doc = $doc:literal])* $field:ident : $ty:ty = $default:expr, $kind:tt $unit:literal; )*
-    }) => {
-        &[$(
-            $crate::declare::ParamSpec {
-                name: stringify!($field),
-                ty: stringify!($ty),
-                unit: $unit,
-                doc: concat!($($doc),*),
-                range: params_struct!(@range $kind),
-                problem: params_struct!(@problem $kind $unit),
-                section: params_struct!(@is_section $kind),
-            }
-        ),*]
-    };
     (@struct [$(#[$meta:meta])*] $name:ident {
         $( $(#[doc = $doc:literal])* $field:ident : $ty:ty = $default:expr, $kind:tt $unit:literal; )*
     }) => {
@@ -174,12 +141,12 @@ macro_rules! params_struct {
             }
         }
     };
-    (@specs $prefix:literal {
+    (@specs $prefix:tt {
         $( $(#[doc = $doc:literal])* $field:ident : $ty:ty = $default:expr, $kind:tt $unit:literal; )*
     }) => {
         &[$(
             $crate::declare::ParamSpec {
-                name: concat!($prefix, ".", stringify!($field)),
+                name: params_struct!(@name $prefix $field),
                 ty: stringify!($ty),
                 unit: $unit,
                 doc: concat!($($doc),*),
@@ -189,28 +156,20 @@ macro_rules! params_struct {
             }
         ),*]
     };
-    (@checks $prefix:literal {
+    (@checks $prefix:tt {
         $( $(#[doc = $doc:literal])* $field:ident : $ty:ty = $default:expr, $kind:tt $unit:literal; )*
     }) => {
         &[$(
             $crate::declare::Check {
-                name: concat!($prefix, ".", stringify!($field)),
+                name: params_struct!(@name $prefix $field),
                 range: params_struct!(@range $kind),
                 problem: params_struct!(@problem $kind $unit),
             }
         ),*]
     };
-    (@checks_root {
-        $( $(#[doc = $doc:literal])* $field:ident : $ty:ty = $default:expr, $kind:tt $unit:literal; )*
-    }) => {
-        &[$(
-            $crate::declare::Check {
-                name: stringify!($field),
-                range: params_struct!(@range $kind),
-                problem: params_struct!(@problem $kind $unit),
-            }
-        ),*]
-    };
+    // The root of the tree (`in [""]`) names its fields without a prefix.
+    (@name "" $field:ident) => { stringify!($field) };
+    (@name $prefix:literal $field:ident) => { concat!($prefix, ".", stringify!($field)) };
     (@check $self:ident $specs:expr, {
         $( $(#[doc = $doc:literal])* $field:ident : $ty:ty = $default:expr, $kind:tt $unit:literal; )*
     }) => {

@@ -590,7 +590,7 @@ params_struct! {
     #[derive(Clone, Copy, Debug, PartialEq)]
     #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
     #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-    pub struct FlightParams at_root {
+    pub struct FlightParams in [""] {
         /// Airframe and motors.
         vehicle: VehicleParams = VehicleParams::default(), { section } "";
         /// Control laws.

@@ -5,7 +5,6 @@
 use anyhow::{Result, bail};
 use control_core::declare::{ParamSpec, Range};
 use control_core::params::{FlightParams, declared};
-use std::fmt::Write as _;
 
 /// Every leaf of a TOML table as `(dotted name, value)`, in the table's order.
 pub fn leaves(v: &toml::Value) -> Vec<(String, toml::Value)> {
@@ -80,10 +79,9 @@ pub fn markdown() -> Result<String> {
         let s = section_of(spec);
         if s != section {
             section = s;
-            let _ = write!(
-                out,
+            out.push_str(&format!(
                 "\n## `{s}`\n\n| name | type | default | range | unit | description |\n|---|---|---|---|---|---|\n"
-            );
+            ));
         }
         let default = match defaults.iter().find(|(n, _)| n == spec.name) {
             Some((_, v)) => number(v),
@@ -93,7 +91,7 @@ pub fn markdown() -> Result<String> {
         let range = spec.range.as_ref().map_or("-".to_string(), range_text);
         let unit = if spec.unit.is_empty() { "-" } else { spec.unit };
         let doc = spec.doc.trim().replace('|', "\\|");
-        let _ = writeln!(out, "| `{short}` | `{}` | {default} | {range} | {unit} | {doc} |", spec.ty);
+        out.push_str(&format!("| `{short}` | `{}` | {default} | {range} | {unit} | {doc} |\n", spec.ty));
     }
     Ok(out)
 }

@@ -861,6 +861,20 @@ fn injected(before: &Estimator, after: &Estimator) -> [f32; N] {
     dx
 }
 
+/// Asserts that the correction the update injected (from `before` to `after`) is `want`, each component within
+/// `rel` of its size (or of `floor`, for the small ones).
+fn assert_injected(before: &Estimator, after: &Estimator, want: &[f64; N], rel: f64, floor: f64) {
+    let dx = injected(before, after);
+    for i in 0..N {
+        assert!(
+            (dx[i] as f64 - want[i]).abs() < rel * want[i].abs().max(floor),
+            "dx[{i}] {} {}",
+            dx[i],
+            want[i]
+        );
+    }
+}
+
 #[test]
 fn a_scalar_update_is_the_kalman_update_with_considered_states_left_alone() {
     let rows: [&[(usize, f32)]; 3] = [
@@ -978,15 +992,7 @@ fn a_body_velocity_updates_as_its_measurement_model_states() {
         v += d3(IV);
         q = q.mul(&Quat::from_rotvec(d3(ITH))).normalized();
     }
-    let dx = injected(&e0, &e);
-    for i in 0..N {
-        assert!(
-            (dx[i] as f64 - total[i]).abs() < 2e-3 * total[i].abs().max(1e-3),
-            "dx[{i}] {} {}",
-            dx[i],
-            total[i]
-        );
-    }
+    assert_injected(&e0, &e, &total, 2e-3, 1e-3);
     for i in 0..N {
         assert!((e.cov[i][i] as f64 - p[i][i]).abs() < 1e-4 * p[i][i], "P[{i}][{i}]");
     }
@@ -1104,15 +1110,7 @@ fn a_fix_updates_heading_then_each_axis_against_the_past_state() {
             total[i] += dx[i];
         }
     }
-    let dx = injected(&e0, &e);
-    for i in 0..N {
-        assert!(
-            (dx[i] as f64 - total[i]).abs() < 1e-4 * total[i].abs().max(1e-4),
-            "dx[{i}] {} {}",
-            dx[i],
-            total[i]
-        );
-    }
+    assert_injected(&e0, &e, &total, 1e-4, 1e-4);
     for i in 0..N {
         assert!((e.cov[i][i] as f64 - p[i][i]).abs() < 1e-4 * p[i][i], "P[{i}][{i}]");
     }
@@ -1196,15 +1194,7 @@ fn gravity_corrects_the_tilt_across_the_predicted_vertical() {
         q = q.mul(&Quat::from_rotvec(d3(ITH))).normalized();
         ba += d3(IBA);
     }
-    let dx = injected(&e0, &e);
-    for i in 0..N {
-        assert!(
-            (dx[i] as f64 - total[i]).abs() < 2e-3 * total[i].abs().max(1e-4),
-            "dx[{i}] {} {}",
-            dx[i],
-            total[i]
-        );
-    }
+    assert_injected(&e0, &e, &total, 2e-3, 1e-4);
     // Refused: a force whose magnitude is far from gravity (more than 3 sigma, at least 0.9 m/s^2), or not
     // finite; nothing changes.
     let mut e = e0.clone();
@@ -1347,15 +1337,7 @@ fn the_drag_model_updates_across_the_thrust_axis_with_the_bias_considered() {
         v += d3(IV);
         w += Vec3::new(dx[IW] as f32, dx[IW + 1] as f32, 0.0);
     }
-    let dx = injected(&e0, &e);
-    for i in 0..N {
-        assert!(
-            (dx[i] as f64 - total[i]).abs() < 1e-4 * total[i].abs().max(1e-4),
-            "dx[{i}] {} {}",
-            dx[i],
-            total[i]
-        );
-    }
+    assert_injected(&e0, &e, &total, 1e-4, 1e-4);
     assert_eq!(e.ba, e0.ba, "the bias is considered, not corrected");
     // With the model off (coefficient 0) nothing is fused.
     let mut off = e0.clone();
