@@ -16,7 +16,8 @@ use geometry::{Mat3, Vec3};
 use rayon::prelude::*;
 
 /// Rows per band when a frame is rendered on several threads (60 bands of a 480-row frame: small enough to
-/// balance two to eight threads, large enough that a band's scratch buffers cost nothing).
+/// balance two to eight threads, large enough to be worth a task; the scratch buffers are made once per task
+/// the pool splits off, not per band).
 const ROW_BAND: usize = 8;
 
 /// The per-row working buffers of [`ForwardRenderer::render`], one set per band of rows.
@@ -463,19 +464,23 @@ impl ForwardRenderer {
         // threads are otherwise idle; in a sweep the runs already fill them and the bands run inline).
         let band = ROW_BAND.min(h.max(1));
         if blur {
-            linear.par_chunks_mut(3 * w * band).enumerate().for_each(|(b, rows)| {
-                let mut sc = RowScratch::new(w);
-                for (k, row) in rows.chunks_exact_mut(3 * w).enumerate() {
-                    render_row(b * band + k, &mut sc, None, Some(row));
-                }
-            });
+            linear.par_chunks_mut(3 * w * band).enumerate().for_each_init(
+                || RowScratch::new(w),
+                |sc, (b, rows)| {
+                    for (k, row) in rows.chunks_exact_mut(3 * w).enumerate() {
+                        render_row(b * band + k, sc, None, Some(row));
+                    }
+                },
+            );
         } else {
-            img.data.par_chunks_mut(3 * w * band).enumerate().for_each(|(b, rows)| {
-                let mut sc = RowScratch::new(w);
-                for (k, row) in rows.chunks_exact_mut(3 * w).enumerate() {
-                    render_row(b * band + k, &mut sc, Some(row), None);
-                }
-            });
+            img.data.par_chunks_mut(3 * w * band).enumerate().for_each_init(
+                || RowScratch::new(w),
+                |sc, (b, rows)| {
+                    for (k, row) in rows.chunks_exact_mut(3 * w).enumerate() {
+                        render_row(b * band + k, sc, Some(row), None);
+                    }
+                },
+            );
         }
         if blur {
             gaussian_blur_rgb(&mut linear, w, h, settings.blur_sigma_px);
