@@ -12,7 +12,7 @@ pub mod flightlog;
 pub mod fly;
 pub mod imageio;
 pub mod import;
-pub mod model;
+pub use vehicle_model as model;
 pub mod params_doc;
 pub mod plot;
 pub mod reference;

@@ -603,4 +603,177 @@ mod tests {
         let f = q.specific_force_body();
         assert!((f[2] - p.gravity).abs() < 1e-9, "{f:?}");
     }
+
+    /// `[w, x, y, z]` of yaw `psi`, then pitch `theta`, then roll `phi` (Z-Y-X), composed by hand.
+    fn zyx(psi: f64, theta: f64, phi: f64) -> [f64; 4] {
+        let (cz, sz) = ((psi / 2.0).cos(), (psi / 2.0).sin());
+        let (cy, sy) = ((theta / 2.0).cos(), (theta / 2.0).sin());
+        let (cx, sx) = ((phi / 2.0).cos(), (phi / 2.0).sin());
+        [
+            cz * cy * cx + sz * sy * sx,
+            cz * cy * sx - sz * sy * cx,
+            cz * sy * cx + sz * cy * sx,
+            sz * cy * cx - cz * sy * sx,
+        ]
+    }
+
+    #[test]
+    fn the_body_frame_is_reached_through_the_transpose_of_a_general_rotation() {
+        let r = quat_to_mat(zyx(0.7, -0.4, 0.25));
+        let v = [0.3, -1.2, 2.5];
+        // R^T v, written out element by element.
+        let expected: V3 = core::array::from_fn(|c| (0..3).map(|k| r[k][c] * v[k]).sum());
+        let got = mat_t_vec(&r, v);
+        for i in 0..3 {
+            assert!((got[i] - expected[i]).abs() < 1e-12, "{got:?} vs {expected:?}");
+        }
+        // And it undoes R.
+        let back = mat_t_vec(&r, mat_vec(&r, v));
+        assert!((0..3).all(|i| (back[i] - v[i]).abs() < 1e-12), "{back:?}");
+    }
+
+    #[test]
+    fn a_weakened_rotor_loses_thrust_and_torque_in_proportion() {
+        let mut p = params();
+        p.rotor_scale = [0.5, 1.0, 1.0, 1.0];
+        let w = 500.0;
+        let (t, tau) = rotor_wrench(&p, [w; 4]);
+        assert!((t - 3.5 * p.k * w * w).abs() < 1e-9 * t, "{t}");
+        // M1 (front) at half thrust: the rear pushes the nose down, +pitch; half of M1's (clockwise) drag
+        // reaction is missing, so the counter-clockwise rotors' reaction turns the body clockwise, -yaw.
+        assert!((tau[1] - 0.5 * p.arm_m * p.k * w * w).abs() < 1e-12, "{tau:?}");
+        assert!((tau[2] + 0.5 * p.k_tau * w * w).abs() < 1e-12, "{tau:?}");
+    }
+
+    #[test]
+    fn the_ground_effect_follows_cheeseman_and_bennett_and_is_capped() {
+        let mut p = params();
+        assert_eq!(ground_effect_factor(&p, 0.1), 1.0, "off without a rotor radius");
+        p.ground_effect_rotor_radius_m = Some(0.1);
+        assert_eq!(ground_effect_factor(&p, 0.1), 1.0, "off without a floor");
+        p.ground_height_m = Some(0.05);
+        for (h, expected) in
+            [(0.1, 1.0 / (1.0 - 0.0625)), (0.5, 1.0 / (1.0 - 0.0025)), (0.2, 1.0 / (1.0 - 0.015625))]
+        {
+            let f = ground_effect_factor(&p, h);
+            assert!((f - expected).abs() < 1e-12, "at {h} m: {f} vs {expected}");
+        }
+        // R/4z = 0.75 would give 2.29: capped at 1.5; at 0.8 and below the floor too.
+        assert_eq!(ground_effect_factor(&p, 0.1 / 3.0), 1.5);
+        assert_eq!(ground_effect_factor(&p, 0.03), 1.5);
+        assert_eq!(ground_effect_factor(&p, -1.0), 1.5);
+        // The derivative lifts by the factor: at 0.1 m with hover speed the excess is g (f - 1).
+        let wh = p.hover_speed();
+        let s = State { p: [0.0, 0.0, 0.1], v: [0.0; 3], q: level(), w: [0.0; 3], rotors: [wh; 4] };
+        let d = derivative(&p, &s, s.rotors);
+        let expected = p.gravity * (1.0 / (1.0 - 0.0625) - 1.0);
+        assert!((d.dv[2] - expected).abs() < 1e-9, "{} vs {expected}", d.dv[2]);
+    }
+
+    #[test]
+    fn rotor_drag_opposes_the_air_relative_velocity_in_the_rotor_plane() {
+        let mut p = params();
+        p.rotor_drag = 1e-3;
+        p.linear_drag = 0.0;
+        let q = zyx(0.6, 0.2, -0.3);
+        let r = quat_to_mat(q);
+        let rotors = [400.0, 450.0, 500.0, 550.0];
+        let v = [0.8, -0.5, 0.3];
+        let wind = [0.2, 0.4, -0.1];
+        let s = State { p: [0.0, 0.0, 2.0], v, q, w: [0.0; 3], rotors };
+        let d = derivative_in_wind(&p, &s, rotors, wind);
+        // Air-relative velocity in the body frame, by hand; the drag acts in body x and y only.
+        let v_air = [v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]];
+        let vb: V3 = core::array::from_fn(|c| (0..3).map(|k| r[k][c] * v_air[k]).sum());
+        let sum_w: f64 = rotors.iter().sum();
+        let (thrust, _) = rotor_wrench(&p, rotors);
+        let f_b = [-p.rotor_drag * sum_w * vb[0], -p.rotor_drag * sum_w * vb[1], thrust];
+        for i in 0..3 {
+            let f_w: f64 = (0..3).map(|k| r[i][k] * f_b[k]).sum();
+            let expected = f_w / p.mass_kg - if i == 2 { p.gravity } else { 0.0 };
+            assert!((d.dv[i] - expected).abs() < 1e-12, "axis {i}: {} vs {expected}", d.dv[i]);
+        }
+        // Still air and a still vehicle: no drag at all; air moving past a hovering vehicle pushes it downwind.
+        p.linear_drag = 0.1;
+        let level_still = State { v: [0.0; 3], q: level(), ..s };
+        let d = derivative_in_wind(&p, &level_still, rotors, [1.0, 0.0, 0.0]);
+        let expected = (p.rotor_drag * sum_w + p.linear_drag) / p.mass_kg;
+        assert!((d.dv[0] - expected).abs() < 1e-12, "{} vs {expected}", d.dv[0]);
+    }
+
+    #[test]
+    fn the_energy_is_the_rigid_body_s_kinetic_and_potential_energy() {
+        let mut p = params();
+        p.inertia = [3.0e-3, 4.5e-3, 7.1e-3];
+        let mut q = Quadrotor::new(p, [1.0, 2.0, 3.5], zyx(0.3, 0.1, 0.2));
+        q.state.v = [0.5, -0.7, 1.1];
+        q.state.w = [2.0, -3.0, 5.0];
+        q.state.rotors = [500.0; 4];
+        let expected = 0.5 * p.mass_kg * (0.25 + 0.49 + 1.21)
+            + 0.5 * (3.0e-3 * 4.0 + 4.5e-3 * 9.0 + 7.1e-3 * 25.0)
+            + p.mass_kg * p.gravity * 3.5;
+        assert!((q.energy() - expected).abs() < 1e-12, "{} vs {expected}", q.energy());
+    }
+
+    #[test]
+    fn touchdown_records_the_impact_speed_and_rests_level_keeping_the_heading() {
+        let mut p = params();
+        p.ground_height_m = Some(0.05);
+        let mut q = Quadrotor::new(p, [0.0, 0.0, 1.05], zyx(0.7, 0.15, -0.2));
+        let mut steps = 0;
+        while !q.on_ground {
+            q.step(1e-4, [0.0; 4]);
+            steps += 1;
+            assert!(steps < 100_000);
+        }
+        let expected = (2.0 * p.gravity * 1.0).sqrt();
+        assert!((q.max_touchdown_speed - expected).abs() < 2e-3, "{} vs {expected}", q.max_touchdown_speed);
+        let rest = [(0.35f64).cos(), 0.0, 0.0, (0.35f64).sin()];
+        assert!((0..4).all(|i| (q.state.q[i] - rest[i]).abs() < 1e-9), "{:?}", q.state.q);
+        assert_eq!(q.state.p[2], 0.05);
+        assert_eq!((q.state.v, q.state.w), ([0.0; 3], [0.0; 3]));
+        // Resting does not count as another touchdown.
+        let first = q.max_touchdown_speed;
+        q.state.v = [0.0, 0.0, -5.0];
+        q.step(1e-4, [0.0; 4]);
+        assert_eq!(q.max_touchdown_speed, first);
+    }
+
+    #[test]
+    fn the_floor_stops_a_descent_under_any_thrust_and_releases_a_vehicle_that_can_climb() {
+        let mut p = params();
+        p.ground_height_m = Some(0.05);
+        let wh = p.hover_speed();
+        // Coming down at 1 m/s with 1.2 times the weight: the floor stops it, it never sinks in.
+        let fast = wh * 1.2f64.sqrt();
+        let mut q = Quadrotor::new(p, [0.0, 0.0, 0.0505], level());
+        q.state.v = [0.0, 0.0, -1.0];
+        q.state.rotors = [fast; 4];
+        for _ in 0..200 {
+            q.step(1e-4, [fast; 4]);
+            assert!(q.state.p[2] >= 0.05, "sank into the floor: {}", q.state.p[2]);
+        }
+        assert!(q.state.v[2] > 0.0, "and then climbs: {:?}", q.state.v);
+        // Pushed below the floor level while rising with 0.9 of the weight: put back on the floor.
+        let weak = wh * 0.9f64.sqrt();
+        let mut q = Quadrotor::new(p, [0.0, 0.0, 0.04], level());
+        q.state.v = [0.0, 0.0, 0.5];
+        q.state.rotors = [weak; 4];
+        q.step(1e-4, [weak; 4]);
+        assert!(q.on_ground && q.state.p[2] == 0.05 && q.state.v == [0.0; 3], "{:?}", q.state);
+        // Below the floor, rising with 1.5 of the weight: free to climb out.
+        let strong = wh * 1.5f64.sqrt();
+        let mut q = Quadrotor::new(p, [0.0, 0.0, 0.04], level());
+        q.state.v = [0.0, 0.0, 0.5];
+        q.state.rotors = [strong; 4];
+        q.step(1e-4, [strong; 4]);
+        assert!(!q.on_ground && q.state.v[2] > 0.5 && q.state.p[2] < 0.05, "{:?}", q.state);
+        // The ground effect counts: 0.9 of the weight out of ground effect climbs out at 0.05 m (factor 4/3).
+        p.ground_effect_rotor_radius_m = Some(0.1);
+        let mut q = Quadrotor::new(p, [0.0, 0.0, 0.0499], level());
+        q.state.v = [0.0, 0.0, 0.5];
+        q.state.rotors = [weak; 4];
+        q.step(1e-4, [weak; 4]);
+        assert!(!q.on_ground, "{:?}", q.state);
+    }
 }
