@@ -24,6 +24,10 @@
 //!
 //! `J Omega' = tau - Omega x J Omega` (eq. 21). A simple ground contact holds the vehicle on the floor while
 //! the thrust is below its weight.
+// Indexing by rotor and axis mirrors the equations.
+#![allow(clippy::needless_range_loop)]
+#![warn(missing_docs)]
+
 use control_core::mixer::SPIN;
 use control_core::params::VehicleParams;
 
