@@ -93,6 +93,20 @@ pub fn markdown() -> Result<String> {
         let doc = spec.doc.trim().replace('|', "\\|");
         out.push_str(&format!("| `{short}` | `{}` | {default} | {range} | {unit} | {doc} |\n", spec.ty));
     }
+    out.push_str(
+        "\n# Simulator values\n\n\
+         The simulator's own values (scene, cameras, model, IMU, link, mission, mismatch, wind, faults), each\n\
+         with its range declared once in `sim-host/src/scenario/limits.rs`. A scenario is refused when a value\n\
+         lies outside, naming the field; the options that override a scenario value (`render --blur`, `--noise`,\n\
+         `--light-gain`, `--light-gradient`, `--exposure-time`, `fly --duration`) have the same limits, since\n\
+         they are checked as the scenario's field they set. Relations between values (a rate that divides the\n\
+         physics rate, a latency plus a frame interval within the flight code's history) follow the ranges.\n\
+         Entries of lists are named without their index (`faults.imu_spike.rate_hz`).\n\n",
+    );
+    out.push_str(&crate::scenario::limits::markdown_table());
+    for (name, why) in crate::scenario::limits::UNRANGED {
+        out.push_str(&format!("\nNot ranged: `{name}` ({why}).\n"));
+    }
     Ok(out)
 }
 

@@ -174,6 +174,37 @@ fn bad_input_is_a_message_and_exit_1() {
             ],
             "1 / down_camera.rate_hz",
         ),
+        // The forward camera's options have its fields' limits, and the refusal names the field.
+        (
+            vec!["render", "--pose", "1,1.3,0.8,0,0,0", "--blur", "5.5", "--out", "/tmp/x.png"],
+            "forward_camera.blur_sigma_px",
+        ),
+        (
+            vec!["render", "--pose", "1,1.3,0.8,0,0,0", "--noise", "100", "--out", "/tmp/x.png"],
+            "`forward_camera.noise_sigma`: must lie in [0, 64] grey levels (got 100)",
+        ),
+        (
+            vec!["render", "--pose", "1,1.3,0.8,0,0,0", "--light-gain", "0", "--out", "/tmp/x.png"],
+            "`scene.light_gain`: must lie in (0, 10]",
+        ),
+        (
+            vec!["render", "--pose", "1,1.3,0.8,0,0,0", "--light-gradient", "9,0", "--out", "/tmp/x.png"],
+            "scene.light_gradient_per_m",
+        ),
+        (
+            vec![
+                "render",
+                "--camera",
+                "down",
+                "--pose",
+                "1,1.3,0.8,0,0,0",
+                "--noise=-1",
+                "--out",
+                "/tmp/x.png",
+            ],
+            "down_camera.noise_sigma",
+        ),
+        (vec!["fly", "--duration", "1e6", "--out", "/tmp/x"], "mission.max_duration_s"),
     ] {
         let out = run(&args);
         assert_eq!(out.status.code(), Some(1), "{args:?}");

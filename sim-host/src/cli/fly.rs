@@ -1,6 +1,6 @@
 //! `sim-host fly`: a scenario flown in simulation.
 use super::common::{progress_bar, rtf_text};
-use anyhow::{Result, bail};
+use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use sim_host::Scenario;
 use std::path::PathBuf;
@@ -100,10 +100,11 @@ pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
         sim_host::files::write_atomic(&path, text.as_bytes())?;
         eprintln!("  the drawn scenario: {}", path.display());
     }
-    if let Some(d) = a.duration
-        && !(d > 0.0 && d.is_finite())
-    {
-        bail!("--duration must be positive");
+    if let Some(d) = a.duration {
+        // The limit of the scenario's `mission.max_duration_s`, which the option overrides.
+        sim_host::scenario::limits::MISSION_MAX_DURATION
+            .check_as("--duration", &[d])
+            .context("--duration overrides mission.max_duration_s")?;
     }
     let camera = a.camera.mode();
     let fc = match sim_host::fil::parse_fc(&a.fc)? {

@@ -59,44 +59,9 @@ pub(crate) struct RenderArgs {
 }
 pub(crate) fn render_down(a: &RenderArgs, scenario: &Scenario, pose: [f64; 6]) -> Result<ExitCode> {
     let [x, y, z, roll, pitch, yaw] = pose;
-    if a.light_gradient.is_some() {
-        bail!(
-            "--light-gradient applies to the forward camera (the floor takes the scenario's gradient along x)"
-        );
-    }
     let renderer = DownRenderer::new(scenario)?;
     let mut settings = renderer.default_settings();
     settings.seed = a.seed;
-    if let Some(g) = a.light_gain {
-        if !(g > 0.0 && g.is_finite()) {
-            bail!("--light-gain must be positive");
-        }
-        settings.light_gain = g;
-    }
-    if let Some(n) = a.noise {
-        if !(n >= 0.0 && n.is_finite()) {
-            bail!("--noise must be >= 0");
-        }
-        settings.noise_sigma = n;
-    }
-    if let Some(b) = a.blur {
-        // The scenario's limit (`down_camera.blur_sigma_px`): one limit for one quantity.
-        if !(0.0..=sim_host::scenario::DOWN_BLUR_MAX_PX).contains(&b) {
-            bail!(
-                "--blur must lie in [0, {}] px for the downward camera",
-                sim_host::scenario::DOWN_BLUR_MAX_PX
-            );
-        }
-        settings.blur_sigma_px = b;
-    }
-    if let Some(e) = a.exposure_time {
-        // The scenario's limit (`down_camera.exposure_time_s`): at most one frame interval.
-        let max = 1.0 / scenario.down_camera.rate_hz;
-        if !(0.0..=max).contains(&e) {
-            bail!("--exposure-time must lie in [0, 1 / down_camera.rate_hz = {max:.4}] s");
-        }
-        settings.exposure_time_s = e;
-    }
     if z.is_nan() || z <= 0.0 {
         bail!("--pose: the downward camera needs the vehicle above the floor (z > 0)");
     }
@@ -128,6 +93,46 @@ pub(crate) fn render_down(a: &RenderArgs, scenario: &Scenario, pose: [f64; 6]) -
     Ok(ExitCode::SUCCESS)
 }
 
+/// The scenario with the options that override its values, validated as a scenario: an option has the same
+/// limit as the field it sets (docs/parameters.md, "Simulator values"), and a refusal names both.
+pub(crate) fn with_overrides(a: &RenderArgs, mut scenario: Scenario) -> Result<Scenario> {
+    let down = a.camera == CameraChoice::Down;
+    let mut set = Vec::new();
+    if let Some(g) = a.light_gain {
+        scenario.scene.light_gain = g;
+        set.push(format!("--light-gain {g} sets scene.light_gain"));
+    }
+    if let Some(g) = &a.light_gradient {
+        scenario.scene.light_gradient_per_m = parse_floats::<2>(g, "--light-gradient")?;
+        set.push(format!("--light-gradient {g} sets scene.light_gradient_per_m"));
+    }
+    let camera = if down { "down_camera" } else { "forward_camera" };
+    if let Some(n) = a.noise {
+        if down {
+            scenario.down_camera.noise_sigma = n
+        } else {
+            scenario.forward_camera.noise_sigma = n
+        }
+        set.push(format!("--noise {n} sets {camera}.noise_sigma"));
+    }
+    if let Some(b) = a.blur {
+        if down {
+            scenario.down_camera.blur_sigma_px = b
+        } else {
+            scenario.forward_camera.blur_sigma_px = b
+        }
+        set.push(format!("--blur {b} sets {camera}.blur_sigma_px"));
+    }
+    if let Some(e) = a.exposure_time {
+        scenario.down_camera.exposure_time_s = e;
+        set.push(format!("--exposure-time {e} sets down_camera.exposure_time_s"));
+    }
+    if !set.is_empty() {
+        scenario.validate().with_context(|| set.join(", "))?;
+    }
+    Ok(scenario)
+}
+
 pub(crate) fn render(a: &RenderArgs) -> Result<ExitCode> {
     let scenario = Scenario::load(&a.scenario)?;
     let pose = parse_floats::<6>(&a.pose, "--pose")?;
@@ -137,38 +142,23 @@ pub(crate) fn render(a: &RenderArgs) -> Result<ExitCode> {
         bail!("--pose: X,Y,Z must lie within 100 m of the origin and ROLL,PITCH,YAW within +-360 deg");
     }
     if a.camera == CameraChoice::Down {
-        return render_down(a, &scenario, pose);
+        if a.light_gradient.is_some() {
+            bail!(
+                "--light-gradient applies to the forward camera (the floor takes the scenario's gradient along x)"
+            );
+        }
+        return render_down(a, &with_overrides(a, scenario)?, pose);
     }
     if a.velocity.is_some() || a.rates.is_some() || a.exposure_time.is_some() {
         bail!(
             "--velocity, --rates and --exposure-time model the downward camera's motion blur (--camera down)"
         );
     }
+    let scenario = with_overrides(a, scenario)?;
     let [x, y, z, roll, pitch, yaw] = pose;
     let renderer = ForwardRenderer::new(&scenario)?;
     let mut settings = renderer.default_settings();
     settings.seed = a.seed;
-    if let Some(g) = a.light_gain {
-        if !(g > 0.0 && g.is_finite()) {
-            bail!("--light-gain must be positive");
-        }
-        settings.light_gain = g;
-    }
-    if let Some(g) = &a.light_gradient {
-        settings.light_gradient_per_m = parse_floats::<2>(g, "--light-gradient")?;
-    }
-    if let Some(n) = a.noise {
-        if !(n >= 0.0 && n.is_finite()) {
-            bail!("--noise must be >= 0");
-        }
-        settings.noise_sigma = n;
-    }
-    if let Some(b) = a.blur {
-        if !(0.0..=sim_host::scenario::FORWARD_BLUR_MAX_PX).contains(&b) {
-            bail!("--blur must lie in [0, {}] px", sim_host::scenario::FORWARD_BLUR_MAX_PX);
-        }
-        settings.blur_sigma_px = b;
-    }
     let att = Attitude::new(deg(roll as f32), deg(pitch as f32), deg(yaw as f32));
     let mount = scenario.forward_camera_mount();
     let r_wb = att.world_from_body();

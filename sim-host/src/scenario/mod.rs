@@ -447,9 +447,11 @@ pub struct Scenario {
     pub faults: Vec<FaultConfig>,
 }
 
+pub mod limits;
 mod robustness;
 mod validate;
-pub use validate::{DOWN_BLUR_MAX_PX, FORWARD_BLUR_MAX_PX};
+pub use limits::{DOWN_BLUR_MAX_PX, FORWARD_BLUR_MAX_PX};
+pub use validate::Ranged;
 
 pub use robustness::{FaultConfig, FaultKind, GustConfig, MismatchConfig, WindConfig};
 

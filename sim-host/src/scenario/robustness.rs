@@ -1,8 +1,6 @@
 //! The scenario's departures from the world the flight code was tuned for: the simulated vehicle differing from
 //! its configuration (`[mismatch]`), wind (`[wind]`) and scheduled faults (`[[faults]]`). All apply to the
 //! simulation only; the flight code keeps `[vehicle]` and its own parameters.
-use super::validate::{check, finite};
-use anyhow::Result;
 use serde::{Deserialize, Serialize};
 
 /// Scale factors and errors of the simulated vehicle against the configured one (`[vehicle]`, which the
@@ -40,40 +38,6 @@ impl Default for MismatchConfig {
     }
 }
 
-impl MismatchConfig {
-    pub(super) fn validate(&self) -> Result<()> {
-        let scale = |v: f64| v.is_finite() && (0.2..=5.0).contains(&v);
-        check(scale(self.mass_scale), "mismatch.mass_scale", "must lie in [0.2, 5]")?;
-        check(
-            self.inertia_scale.iter().all(|v| scale(*v)),
-            "mismatch.inertia_scale",
-            "must lie in [0.2, 5]",
-        )?;
-        check(scale(self.thrust_coeff_scale), "mismatch.thrust_coeff_scale", "must lie in [0.2, 5]")?;
-        check(
-            scale(self.drag_torque_coeff_scale),
-            "mismatch.drag_torque_coeff_scale",
-            "must lie in [0.2, 5]",
-        )?;
-        check(
-            scale(self.motor_time_constant_scale),
-            "mismatch.motor_time_constant_scale",
-            "must lie in [0.2, 5]",
-        )?;
-        let small = |v: &[f64; 3]| finite(v) && v.iter().all(|a| a.abs() <= 20.0);
-        check(
-            small(&self.forward_camera_mount_error_deg),
-            "mismatch.forward_camera_mount_error_deg",
-            "angles must lie within +-20 deg",
-        )?;
-        check(
-            small(&self.imu_misalignment_deg),
-            "mismatch.imu_misalignment_deg",
-            "angles must lie within +-20 deg",
-        )
-    }
-}
-
 /// A 1-cosine gust: the wind rises from zero to `velocity_m_s` and back over `duration_s`,
 /// `v(t) = v_gust (1 - cos(2 pi (t - start) / duration)) / 2`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -99,42 +63,6 @@ pub struct WindConfig {
     pub turbulence_length_m: f64,
     /// Discrete gusts.
     pub gusts: Vec<GustConfig>,
-}
-
-impl WindConfig {
-    pub(super) fn validate(&self) -> Result<()> {
-        check(
-            finite(&self.mean_m_s) && self.mean_m_s.iter().all(|v| v.abs() <= 15.0),
-            "wind.mean_m_s",
-            "must be finite and within 15 m/s per axis",
-        )?;
-        check(
-            self.turbulence_sigma_m_s.is_finite() && (0.0..=5.0).contains(&self.turbulence_sigma_m_s),
-            "wind.turbulence_sigma_m_s",
-            "must lie in [0, 5] m/s",
-        )?;
-        check(
-            self.turbulence_sigma_m_s == 0.0
-                || (self.turbulence_length_m.is_finite()
-                    && (0.1..=1000.0).contains(&self.turbulence_length_m)),
-            "wind.turbulence_length_m",
-            "must lie in [0.1, 1000] m when there is turbulence",
-        )?;
-        for (i, g) in self.gusts.iter().enumerate() {
-            let field = format!("wind.gusts[{i}]");
-            check(
-                g.start_s.is_finite() && g.start_s >= 0.0 && g.duration_s.is_finite() && g.duration_s > 0.0,
-                &field,
-                "start_s must be >= 0 and duration_s positive",
-            )?;
-            check(
-                finite(&g.velocity_m_s) && g.velocity_m_s.iter().all(|v| v.abs() <= 15.0),
-                &field,
-                "velocity_m_s must be within 15 m/s per axis",
-            )?;
-        }
-        Ok(())
-    }
 }
 
 /// What goes wrong.
@@ -231,43 +159,5 @@ impl FaultConfig {
     /// Whether the fault acts at `t_s`.
     pub fn active(&self, t_s: f64) -> bool {
         t_s >= self.start_s && t_s < self.start_s + self.duration_s
-    }
-
-    pub(super) fn validate(&self, i: usize) -> Result<()> {
-        let field = format!("faults[{i}] ({})", self.kind.name());
-        check(
-            self.start_s.is_finite()
-                && self.start_s >= 0.0
-                && self.duration_s.is_finite()
-                && self.duration_s > 0.0,
-            &field,
-            "start_s must be >= 0 and duration_s positive",
-        )?;
-        let ok = match &self.kind {
-            FaultKind::LinkCorruption { byte_error_rate } => (0.0..=1.0).contains(byte_error_rate),
-            FaultKind::ImuSpike { rate_hz, accel_m_s2, gyro_rad_s } => {
-                (0.0..=1000.0).contains(rate_hz)
-                    && (0.0..=500.0).contains(accel_m_s2)
-                    && (0.0..=50.0).contains(gyro_rad_s)
-            }
-            FaultKind::ImuBiasStep { gyro_rad_s, accel_m_s2 } => {
-                finite(gyro_rad_s)
-                    && finite(accel_m_s2)
-                    && gyro_rad_s.iter().all(|v| v.abs() <= 1.0)
-                    && accel_m_s2.iter().all(|v| v.abs() <= 5.0)
-            }
-            FaultKind::GyroSaturation { limit_rad_s } => limit_rad_s.is_finite() && *limit_rad_s > 0.0,
-            FaultKind::MagDisturbance { heading_offset_deg, field_scale } => {
-                heading_offset_deg.is_finite()
-                    && heading_offset_deg.abs() <= 180.0
-                    && (0.0..=10.0).contains(field_scale)
-            }
-            FaultKind::MotorDegradation { motor, thrust_scale } => {
-                (1..=4).contains(motor) && (0.0..=1.0).contains(thrust_scale)
-            }
-            FaultKind::MotorLoss { motor } => (1..=4).contains(motor),
-            _ => true,
-        };
-        check(ok, &field, "a value is out of its range (see docs/robustness.md)")
     }
 }
