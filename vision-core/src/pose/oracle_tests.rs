@@ -491,6 +491,13 @@ fn solve_pose_reports_the_vehicle_behind_an_offset_camera_and_its_covariance() {
         solve_pose(&s.obs, &CAM, &TARGET, &mount, imu, &tight).unwrap_err(),
         PoseError::Underdetermined
     );
+    // Either one beyond is enough.
+    assert!((std.y - std.z).abs() > 0.05 * std.y.max(std.z), "{std:?}");
+    let between = PoseParams { max_std_m: 0.5 * (std.y + std.z), ..params };
+    assert_eq!(
+        solve_pose(&s.obs, &CAM, &TARGET, &mount, imu, &between).unwrap_err(),
+        PoseError::Underdetermined
+    );
     let loose = PoseParams { max_std_m: std.y.max(std.z) * 1.01, ..params };
     assert!(solve_pose(&s.obs, &CAM, &TARGET, &mount, imu, &loose).is_ok());
 }
