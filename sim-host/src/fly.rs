@@ -6,7 +6,6 @@ use crate::scenario::Scenario;
 use crate::sil::{CameraMode, FcChoice, FlowRecord, Record, RunStats, Sil};
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -107,7 +106,7 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
         files.push(path);
     }
     if opts.plots {
-        files.extend(write_plots(&opts.out, sil.records(), sil.flow_records(), &stats)?);
+        files.extend(write_plots(&opts.out, sil.records(), sil.flow_records())?);
     }
     let summary = summary_json(opts, &stats, wall, &files);
     let path = opts.out.join("summary.json");
@@ -246,30 +245,30 @@ pub fn write_trajectory_csv(path: &Path, records: &[Record]) -> Result<()> {
          mode,fix_age_s\n",
     );
     for r in records {
-        let _ = write!(s, "{:.3}", r.t_s);
+        s.push_str(&format!("{:.3}", r.t_s));
         for v in r.true_p.iter().chain(&r.true_v) {
-            let _ = write!(s, ",{v:.6}");
+            s.push_str(&format!(",{v:.6}"));
         }
         for v in &r.true_att {
-            let _ = write!(s, ",{:.4}", v.to_degrees());
+            s.push_str(&format!(",{:.4}", v.to_degrees()));
         }
         for v in r.est_p.iter().chain(&r.est_v) {
-            let _ = write!(s, ",{v:.6}");
+            s.push_str(&format!(",{v:.6}"));
         }
         for v in &r.est_att {
-            let _ = write!(s, ",{:.4}", (*v as f64).to_degrees());
+            s.push_str(&format!(",{:.4}", (*v as f64).to_degrees()));
         }
         for v in r.des_p.iter().chain(&r.des_v) {
-            let _ = write!(s, ",{v:.6}");
+            s.push_str(&format!(",{v:.6}"));
         }
         for v in &r.motor_cmd {
-            let _ = write!(s, ",{v:.2}");
+            s.push_str(&format!(",{v:.2}"));
         }
         for v in &r.motor {
-            let _ = write!(s, ",{v:.2}");
+            s.push_str(&format!(",{v:.2}"));
         }
         let age = if r.fix_age_s.is_finite() { format!("{:.3}", r.fix_age_s) } else { String::new() };
-        let _ = writeln!(s, ",{:?},{}", r.mode, age);
+        s.push_str(&format!(",{:?},{}\n", r.mode, age));
     }
     std::fs::write(path, s).with_context(|| format!("cannot write {}", path.display()))
 }
@@ -279,23 +278,17 @@ pub fn write_flow_csv(path: &Path, records: &[FlowRecord]) -> Result<()> {
     let mut s = String::with_capacity(records.len() * 80);
     s.push_str("t_s,flow_vx_m_s,flow_vy_m_s,true_vx_m_s,true_vy_m_s,flow_std_m_s\n");
     for r in records {
-        let _ = writeln!(
-            s,
-            "{:.4},{:.6},{:.6},{:.6},{:.6},{:.6}",
+        s.push_str(&format!(
+            "{:.4},{:.6},{:.6},{:.6},{:.6},{:.6}\n",
             r.t_s, r.measured[0], r.measured[1], r.truth[0], r.truth[1], r.std_m_s
-        );
+        ));
     }
     std::fs::write(path, s).with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Writes x, y, z and the horizontal velocities over time (truth, estimate, desired, and the optical flow's
 /// velocity), like the paper's figures 7-11 with the truth beside every estimate.
-pub fn write_plots(
-    dir: &Path,
-    records: &[Record],
-    flow: &[FlowRecord],
-    st: &RunStats,
-) -> Result<Vec<PathBuf>> {
+pub fn write_plots(dir: &Path, records: &[Record], flow: &[FlowRecord]) -> Result<Vec<PathBuf>> {
     let t: Vec<f64> = records.iter().map(|r| r.t_s).collect();
     let col = |f: &dyn Fn(&Record) -> f64| records.iter().map(f).collect::<Vec<f64>>();
     let track = records
@@ -307,7 +300,6 @@ pub fn write_plots(
         (Some(a), Some(b)) => vec![(*a, *b, "tracking")],
         _ => vec![],
     };
-    let _ = st;
     let panels: [(&str, &str, &str, usize, bool); 5] = [
         ("x.png", "x: along the line (paper Fig. 8)", "x (m)", 0, false),
         ("y.png", "y: distance to the wall (paper Fig. 7)", "y (m)", 1, false),
