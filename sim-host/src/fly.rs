@@ -167,6 +167,8 @@ pub fn summary_json(opts: &FlyOptions, st: &RunStats, wall: f64, files: &[PathBu
             "no_target": st.frames_no_target,
             "rejected": st.frames_rejected,
             "frozen": st.frames_frozen,
+            "ground_station_no_target": st.ground_no_target.to_json(),
+            "analytic_not_in_view": st.analytic_not_in_view,
         },
         "flow_velocity_rms_error_m_s": if st.flow_camera {
             json!({"x": r6(st.flow_rms_error_m_s[0]), "y": r6(st.flow_rms_error_m_s[1])})

@@ -109,6 +109,8 @@ pub struct ReplaySummary {
     pub measurements_differing: u64,
     /// Logged measurements without their frame (fed as logged).
     pub measurements_without_frame: u64,
+    /// Forward frames in which the re-run detector found no line, by its reason.
+    pub no_target: crate::vision::NoTargetCounts,
     /// The first difference.
     pub first: Option<Difference>,
     /// Simulated time covered (s).
@@ -319,7 +321,7 @@ pub fn replay_stream(
                             let img = f
                                 .to_rgb()
                                 .map_err(|e| anyhow::anyhow!("record {index} (byte {offset}): {e:#}"))?;
-                            fv.vision.insert(f.seq, fv.forward.detect(&img).ok());
+                            fv.vision.insert(f.seq, s.no_target.record(fv.forward.detect(&img)));
                         }
                         CameraId::Downward => {
                             let img = f

@@ -181,6 +181,11 @@ pub struct RunStats {
     pub frames_solved: u32,
     /// Frames without the line.
     pub frames_no_target: u32,
+    /// Rendered frames in which the ground station's detector found no line, by the detector's reason.
+    pub ground_no_target: crate::vision::NoTargetCounts,
+    /// Analytic frames without a measurement: the line hidden (`scene.line_visible = false`), out of view, or
+    /// outside what the detector would report.
+    pub analytic_not_in_view: u64,
     /// Frames the vehicle rejected.
     pub frames_rejected: u32,
     /// Frames the vehicle refused as repeats of the one before (a frozen camera).
@@ -570,7 +575,7 @@ impl Sil {
                         let mut s = self.seed ^ 0xF0F0_0000_0000_0000 ^ self.frame_index;
                         settings.seed = splitmix64(&mut s);
                         let img = r.render(&r_wc, center, &settings);
-                        let observation = self.vision.detect(&img).ok();
+                        let observation = self.stats.ground_no_target.record(self.vision.detect(&img));
                         if let Some(enc) = self.frame_encoding() {
                             let f = crate::flightlog::CameraFrame::rgb(
                                 self.frame_index as u32,
@@ -585,7 +590,10 @@ impl Sil {
                     None => None,
                 }
             }
-            CameraMode::Analytic if !self.scenario.scene.line_visible => None,
+            CameraMode::Analytic if !self.scenario.scene.line_visible => {
+                self.stats.analytic_not_in_view += 1;
+                None
+            }
             CameraMode::Analytic => {
                 let cam = self.scenario.forward_camera_model();
                 let target = self.scenario.line_target();
@@ -597,10 +605,13 @@ impl Sil {
                 let rng = &mut self.edge_rng;
                 // Only what the detector would report: a sliver of an edge in the image's corner is not a
                 // target (vision_core::observation::within_detector_limits).
-                project_observation(&cam, &target, &r_wc.transpose(), center, 8.0, 2.0, || {
-                    (sigma * rng.normal()) as f32
-                })
-                .and_then(|o| within_detector_limits(o, cam.focal_px(), self.vision.detector_params()))
+                let observation =
+                    project_observation(&cam, &target, &r_wc.transpose(), center, 8.0, 2.0, || {
+                        (sigma * rng.normal()) as f32
+                    })
+                    .and_then(|o| within_detector_limits(o, cam.focal_px(), self.vision.detector_params()));
+                self.stats.analytic_not_in_view += observation.is_none() as u64;
+                observation
             }
         };
         // A frozen camera delivers the frame it froze on, again and again.

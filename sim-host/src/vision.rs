@@ -73,6 +73,51 @@ pub struct FrameResult {
     pub pose: PoseSolution,
 }
 
+/// Frames in which the detector found no line, counted by its reason, so that a summary says why vision
+/// was blind (no red at all, the line clipped by the image's edge, ...) rather than only how often.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct NoTargetCounts {
+    counts: [u64; NoTargetReason::ALL.len()],
+}
+
+impl NoTargetCounts {
+    /// Counts a detection's outcome and passes its observation on (`None` when it found no line).
+    pub fn record(&mut self, detection: Result<LineObservation, NoTargetReason>) -> Option<LineObservation> {
+        match detection {
+            Ok(observation) => Some(observation),
+            Err(reason) => {
+                self.counts[reason as usize] += 1;
+                None
+            }
+        }
+    }
+
+    /// Frames refused for `reason`.
+    pub fn get(&self, reason: NoTargetReason) -> u64 {
+        self.counts[reason as usize]
+    }
+
+    /// Frames refused for any reason.
+    pub fn total(&self) -> u64 {
+        self.counts.iter().sum()
+    }
+
+    /// Every reason's count by its code (zeros included, so the keys do not depend on the flight).
+    pub fn to_json(&self) -> Value {
+        let map: serde_json::Map<String, Value> =
+            NoTargetReason::ALL.iter().map(|r| (r.code().to_string(), json!(self.get(*r)))).collect();
+        Value::Object(map)
+    }
+
+    /// The reasons that occurred, largest first: `no_red_pixels 120, line_clipped 4` (empty when none).
+    pub fn describe(&self) -> String {
+        let mut seen: Vec<(NoTargetReason, u64)> =
+            NoTargetReason::ALL.iter().map(|r| (*r, self.get(*r))).filter(|(_, n)| *n > 0).collect();
+        seen.sort_by_key(|(r, n)| (std::cmp::Reverse(*n), *r as usize));
+        seen.iter().map(|(r, n)| format!("{} {n}", r.code())).collect::<Vec<_>>().join(", ")
+    }
+}
+
 /// Runs detection and pose on one frame.
 pub struct GroundVision {
     scenario: Scenario,
@@ -212,5 +257,30 @@ fn draw_cross(img: &mut RgbImage, c: Vec2, colour: [u8; 3]) {
     for d in -6..=6 {
         img.put(x + d, y, colour);
         img.put(x, y + d, colour);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn no_target_counts_keep_each_reason_apart() {
+        let mut c = NoTargetCounts::default();
+        assert_eq!(c.describe(), "");
+        assert_eq!(c.record(Err(NoTargetReason::LineClipped)), None);
+        for _ in 0..3 {
+            c.record(Err(NoTargetReason::NoRedPixels));
+        }
+        assert_eq!(c.get(NoTargetReason::NoRedPixels), 3);
+        assert_eq!(c.get(NoTargetReason::LineClipped), 1);
+        assert_eq!(c.get(NoTargetReason::TooMuchRed), 0);
+        assert_eq!(c.total(), 4);
+        assert_eq!(c.describe(), "no_red_pixels 3, line_clipped 1");
+        let j = c.to_json();
+        assert_eq!(j.as_object().unwrap().len(), NoTargetReason::ALL.len());
+        assert_eq!(j["no_red_pixels"], 3);
+        assert_eq!(j["line_clipped"], 1);
+        assert_eq!(j["edges_not_straight"], 0);
     }
 }

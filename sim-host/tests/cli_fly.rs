@@ -36,6 +36,14 @@ fn fly_writes_summary_trajectory_and_plots() {
         assert!(s["rms_error_m"][axis].as_f64().unwrap() < 0.05);
         assert!(s["estimate_rms_error_m"][axis].as_f64().unwrap() < 0.02);
     }
+    // The ground station's blind frames (analytic: out of view or outside the detector's limits) are the
+    // vehicle's "no target" frames, but for the frames still on the radio at the end (latency 50 ms).
+    let v = &s["vision"];
+    let (blind, no_target) = (v["analytic_not_in_view"].as_i64().unwrap(), v["no_target"].as_i64().unwrap());
+    assert!(blind > 0 && (blind - no_target).abs() <= 2, "{v}");
+    let reasons = v["ground_station_no_target"].as_object().unwrap();
+    assert_eq!(reasons.len(), 8, "{v}");
+    assert!(reasons.values().all(|n| n == 0), "no detector ran on analytic frames: {v}");
     let csv = std::fs::read_to_string(out.join("trajectory.csv")).unwrap();
     let mut lines = csv.lines();
     let header = lines.next().unwrap();

@@ -3,6 +3,7 @@
 use sim_host::Scenario;
 use sim_host::scenario::{FaultConfig, FaultKind};
 use sim_host::sil::{CameraMode, Record, RunStats, Sil};
+use vision_core::NoTargetReason;
 
 fn fly(s: &Scenario, seed: u64, mode: CameraMode) -> (RunStats, Vec<Record>) {
     let mut sil = Sil::new(s, seed, mode).unwrap();
@@ -137,6 +138,18 @@ fn with_the_line_never_visible_the_vehicle_lands_and_disarms_within_10_s() {
         );
         assert_landed_safely(&st, &recs, what);
         assert!(st.sim_time_s < 30.0, "{what}: the run went on to {} s", st.sim_time_s);
+        // Every blind frame is counted with its reason: a blank wall has no red pixels at all.
+        match mode {
+            CameraMode::Rendered => {
+                assert_eq!(st.ground_no_target.total(), st.frames as u64, "{what}");
+                assert_eq!(st.ground_no_target.get(NoTargetReason::NoRedPixels), st.frames as u64, "{what}");
+                assert_eq!(st.analytic_not_in_view, 0, "{what}");
+            }
+            CameraMode::Analytic => {
+                assert_eq!(st.analytic_not_in_view, st.frames as u64, "{what}");
+                assert_eq!(st.ground_no_target.total(), 0, "{what}");
+            }
+        }
     }
 }
 

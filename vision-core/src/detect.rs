@@ -53,6 +53,18 @@ pub enum NoTargetReason {
 }
 
 impl NoTargetReason {
+    /// Every reason, in declaration order (`ALL[r as usize] == r`).
+    pub const ALL: [NoTargetReason; 8] = [
+        NoTargetReason::BadImageSize,
+        NoTargetReason::NoRedPixels,
+        NoTargetReason::NoLineShapedRegion,
+        NoTargetReason::TooMuchRed,
+        NoTargetReason::LineClipped,
+        NoTargetReason::TooFewEdgePoints,
+        NoTargetReason::EdgesNotStraight,
+        NoTargetReason::NotAFilledBand,
+    ];
+
     /// A short human-readable explanation.
     pub fn describe(&self) -> &'static str {
         match self {
@@ -870,6 +882,17 @@ mod tests {
     const H: usize = 480;
     const WALL: [f32; 3] = [180.0, 175.0, 165.0];
     const RED: [f32; 3] = [200.0, 35.0, 30.0];
+
+    #[test]
+    fn every_reason_is_listed_once_at_its_index_with_its_own_code() {
+        for (i, r) in NoTargetReason::ALL.iter().enumerate() {
+            assert_eq!(*r as usize, i);
+            for other in &NoTargetReason::ALL[..i] {
+                assert_ne!(r.code(), other.code());
+                assert_ne!(r.describe(), other.describe());
+            }
+        }
+    }
 
     /// Exact box-filter coverage of pixel (i, j) (covering [i-0.5, i+0.5] x [j-0.5, j+0.5]) by a shape given
     /// as an inside test, by 64x64 supersampling (axis-aligned shapes are computed exactly instead).

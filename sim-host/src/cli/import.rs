@@ -141,6 +141,9 @@ fn print_summary(out: &Path, s: &ImportSummary) {
         s.frames,
         s.measured
     );
+    if s.no_target.total() > 0 {
+        eprintln!("note: forward frames without the line, by reason: {}", s.no_target.describe());
+    }
     if s.imu_gaps > 0 {
         eprintln!("note: {} gaps of more than 10 control periods between IMU samples", s.imu_gaps);
     }

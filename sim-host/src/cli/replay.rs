@@ -98,6 +98,9 @@ pub(crate) fn replay(a: &ReplayArgs) -> Result<ExitCode> {
             "{} frames; {} measurements recomputed from frames, {} differ, {} without their frame",
             s.frames, s.measurements_compared, s.measurements_differing, s.measurements_without_frame
         );
+        if s.no_target.total() > 0 {
+            eprintln!("forward frames without the line, by reason: {}", s.no_target.describe());
+        }
     }
     if let Some(p) = &a.out {
         eprintln!("wrote {}", p.display());

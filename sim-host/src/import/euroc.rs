@@ -220,7 +220,7 @@ impl ExtraRecords for Frames {
             };
             let msg = match self.cam0 {
                 CameraId::Forward => {
-                    let observation = self.vision.detect(&frame.to_rgb()?).ok();
+                    let observation = summary.no_target.record(self.vision.detect(&frame.to_rgb()?));
                     summary.measured += observation.is_some() as u64;
                     Some(Uplink::Vision(VisionMeasurement {
                         capture_time_us: rebase(ft),

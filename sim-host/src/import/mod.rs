@@ -119,6 +119,8 @@ pub struct ImportSummary {
     pub frames: u64,
     /// Forward frames in which the line was found, or flow pairs that gave a flow.
     pub measured: u64,
+    /// Forward frames in which the detector found no line, by its reason.
+    pub no_target: crate::vision::NoTargetCounts,
     /// Seconds of data.
     pub seconds: f64,
     /// Gaps between IMU samples longer than 10 control periods (the flight code integrates or counts them).
