@@ -423,8 +423,9 @@ params_struct! {
         reset_velocity_sigma_m_s: f32 = 0.5, { > 0.0, <= 10.0 } "m/s";
         /// Innovations beyond this many standard deviations are rejected.
         gate_sigma: f32 = 5.0, { >= 2.0, <= 1000.0 } "";
-        /// Fixes older than this are not fused (s); within the state history (0.5 s).
-        max_fix_age_s: f32 = 0.25, { > 0.0, <= 0.5 } "s";
+        /// Fixes older than this are not fused (s); at most the state history's length
+        /// (`estimator::HISTORY_S`).
+        max_fix_age_s: f32 = 0.25, { > 0.0, <= 0.256 } "s";
         /// Magnetic field in the world frame (any unit; only its horizontal direction is used).
         mag_field_world: [f32; 3] = [0.2, -0.05, -0.4], { >= -1e6, <= 1e6 } "";
         /// At rest: standard deviation of the zero-velocity measurement, per block of samples (m/s).
@@ -467,13 +468,8 @@ params_struct! {
 }
 
 impl EstimatorParams {
-    fn validate(&self) -> Result<(), ParamError> {
+    pub(crate) fn validate(&self) -> Result<(), ParamError> {
         self.check_declared(0)?;
-        check(
-            self.max_fix_age_s <= crate::estimator::HISTORY_S,
-            "estimator.max_fix_age_s",
-            "must be positive and within the state history (0.5 s)",
-        )?;
         let m = self.mag_field_world;
         check(
             m[0] * m[0] + m[1] * m[1] > 1e-12,
