@@ -723,6 +723,34 @@ fn the_paper_depth_uses_the_finish_end_when_the_start_is_out_of_view() {
 }
 
 #[test]
+fn the_paper_depth_is_the_line_height_over_its_image_at_the_end_corners() {
+    // A yawed, rolled camera, so that in the image the end meets the long edges far from a right angle: the
+    // meet points are then the projected corners A and B only if the homogeneous intersection is divided out.
+    let pos = Vec3::new(0.6, 1.1, 0.85);
+    let att = Attitude::new(geometry::deg(12.0), geometry::deg(-6.0), geometry::deg(28.0));
+    let r = camera_from_world(att, &CameraMount::FORWARD_AT_CENTRE);
+    let s = synthetic(&r, pos, 0.0, Ends::StartOnly, 0);
+    let got = translation_paper(&r, &s.obs, &TARGET, TARGET.center()).unwrap() + TARGET.center();
+    // By hand (f64): a and b the normalised images of A and B; depth z = H / |a - b| along a; the camera
+    // centre is A less that ray rotated to the world.
+    let proj = |p: Vec3| {
+        let x = r.mul_vec(p - pos);
+        [x.x as f64 / x.z as f64, x.y as f64 / x.z as f64]
+    };
+    let (a, b) = (proj(TARGET.corner(Corner::A)), proj(TARGET.corner(Corner::B)));
+    let h = ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
+    let z = TARGET.height_m() as f64 / h;
+    let ray = r.tmul_vec(Vec3::new((a[0] * z) as f32, (a[1] * z) as f32, z as f32));
+    let want = TARGET.corner(Corner::A) - ray;
+    assert!((got - want).norm() < 2e-4, "{got:?} {want:?}");
+    // The ends meet the long edges well away from a right angle here (the test's point).
+    let e = s.obs.start_end.unwrap().line();
+    let l = s.obs.bottom.line();
+    let sin = (l.x * e.y - l.y * e.x).abs() / ((l.x * l.x + l.y * l.y) * (e.x * e.x + e.y * e.y)).sqrt();
+    assert!(sin < 0.995, "sin {sin}");
+}
+
+#[test]
 fn the_ambiguity_ratio_is_the_kept_rms_over_the_other() {
     // The far, nearly affine view of `planar_ambiguity_resolved_by_gravity`, with noise.
     let t = LineTarget { x_start_m: 0.0, x_end_m: 0.3, z_bottom_m: 3.7, z_top_m: 3.9 };
