@@ -3,26 +3,11 @@
 //! position reset after refusals, the floor, the compass's two refusals, the learned thrust axis, the
 //! integration of biased samples and long intervals. Each holds a behaviour that the tests in `tests.rs`
 //! reached only through a closed loop (found by mutation testing, docs/mutation-testing.md).
+use super::tests::{field_reading, with_distinct_covariance as distinct, yaw_of};
 use super::*;
 use crate::motion::{Block, MotionClass};
 
-/// A filter with a full, distinct covariance and a tilted, yawed attitude (as in `tests.rs`).
-fn distinct() -> Estimator {
-    let mut e = Estimator::new(EstimatorParams::default(), Vec3::new(1.0, 1.3, 0.8));
-    for i in 0..N {
-        for j in 0..N {
-            e.cov[i][j] = if i == j { 0.01 * (i + 1) as f32 } else { 1e-4 * ((i * 7 + j * 7) % 11) as f32 };
-        }
-    }
-    e.q = Quat::from_mat3(&Attitude::new(0.2, -0.3, 0.7).world_from_body());
-    e
-}
-
 const STD1CM: Vec3 = Vec3::new(0.01, 0.01, 0.01);
-
-fn yaw_of(e: &Estimator) -> f32 {
-    Attitude::from_world_from_body(&e.q.to_mat3()).yaw
-}
 
 fn fix(t_us: u64, p: Vec3, yaw: f32, std: Vec3) -> PositionFix {
     PositionFix {
@@ -170,12 +155,6 @@ fn the_floor_lifts_a_height_below_it_alone_and_leaves_one_at_or_above_it() {
     e.cov[z][z] = 1e-8;
     e.constrain_above_floor(0.06);
     assert!((e.cov[z][z] - s * s).abs() < 1e-9);
-}
-
-/// The body-frame field that reads as compass heading error `raw` at the filter's attitude.
-fn field_reading(e: &Estimator, raw: f32) -> Vec3 {
-    let b = Vec3::from_array(e.params.mag_field_world);
-    e.q.to_mat3().tmul_vec(Mat3::rot_z(-raw).mul_vec(b))
 }
 
 #[test]

@@ -413,7 +413,7 @@ fn the_compass_sets_the_heading_only_once_the_tilt_is_known() {
 
 /// A filter with a covariance whose every entry differs (symmetric, positive diagonal), so that reading a
 /// wrong entry or combining them wrongly shows.
-fn with_distinct_covariance() -> Estimator {
+pub(super) fn with_distinct_covariance() -> Estimator {
     let mut e = Estimator::new(EstimatorParams::default(), Vec3::new(1.0, 1.3, 0.8));
     for i in 0..N {
         for j in 0..N {
@@ -750,7 +750,7 @@ fn samples_that_are_not_finite_or_not_newer_are_refused_and_a_held_gyro_is_count
     assert_eq!(e.counters().gyro_clipped, 2);
 }
 
-fn yaw_of(e: &Estimator) -> f32 {
+pub(super) fn yaw_of(e: &Estimator) -> f32 {
     Attitude::from_world_from_body(&e.q.to_mat3()).yaw
 }
 
@@ -784,7 +784,7 @@ fn a_yaw_reset_turns_the_state_and_its_history_and_sets_the_yaw_variance_alone()
 
 /// The body-frame field that reads as compass heading error `raw` (`atan2` of the world field less that of
 /// the levelled reading) at the filter's attitude.
-fn field_reading(e: &Estimator, raw: f32) -> Vec3 {
+pub(super) fn field_reading(e: &Estimator, raw: f32) -> Vec3 {
     let b = Vec3::from_array(e.params.mag_field_world);
     let m_w = Mat3::rot_z(-raw).mul_vec(b);
     e.q.to_mat3().tmul_vec(m_w)
