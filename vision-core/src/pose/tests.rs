@@ -202,3 +202,93 @@ fn planar_ambiguity_resolved_by_gravity() {
     assert!(with_imu.camera_from_world.angle_to(&r_pitched) < geometry::deg(0.5));
     assert!(img.camera_from_world.angle_to(&r_pitched) > geometry::deg(10.0));
 }
+
+/// The image-only costs (sigma-normalised) of the kept pose and of its alternative.
+fn kept_and_alternative_costs(obs: &LineObservation, t: &LineTarget, sol: &PoseSolution) -> (f32, f32) {
+    let mount = CameraMount::FORWARD_AT_CENTRE;
+    let sigma = pooled_sigma(obs, PoseParams::default().min_sigma_px / CAM.focal_px());
+    let problem = Problem::new(obs, t, sigma, None, &mount, false);
+    let cost = |r: &Mat3, c: Vec3| problem.cost(r, -r.mul_vec(c - t.center()));
+    let alt = sol.alternative.expect("a second minimum");
+    (cost(&sol.camera_from_world, sol.camera_position_m), cost(&alt.camera_from_world, alt.camera_position_m))
+}
+
+#[test]
+fn when_only_one_minimum_fits_the_image_the_one_that_fits_is_kept() {
+    // Costs more than 9 apart (the 3-sigma likelihood-ratio test fails): the smaller residual decides, whichever
+    // minimum the refinement reached first. A far small target seen nearly affinely, where the first minimum
+    // is the true pose, and a long line seen from afar with one end in view, which the image does not
+    // determine and where the mirror is the better fit.
+    let params = PoseParams { max_rms_px: 5.0, max_std_m: f32::INFINITY, ..PoseParams::default() };
+    let mount = CameraMount::FORWARD_AT_CENTRE;
+    let views = [
+        (
+            LineTarget { x_start_m: 0.0, x_end_m: 0.3, z_bottom_m: 3.7, z_top_m: 3.9 },
+            Vec3::new(0.15, 3.0, 0.8),
+            Attitude::new(0.0, geometry::deg(-10.0), 0.0),
+        ),
+        (
+            LineTarget { x_start_m: -8.0, x_end_m: 0.3, z_bottom_m: 3.7, z_top_m: 3.9 },
+            Vec3::new(0.15, 8.0, 0.8),
+            Attitude::new(0.0, geometry::deg(-30.0), geometry::deg(30.0)),
+        ),
+    ];
+    for (i, (t, pos, att)) in views.iter().enumerate() {
+        let obs = exact(t, *pos, *att);
+        let sol = solve_pose(&obs, &CAM, t, &mount, AttitudeSource::ImageOnly, &params).unwrap();
+        let alt = sol.alternative.expect("a second minimum");
+        let (kept, other) = kept_and_alternative_costs(&obs, t, &sol);
+        assert!(other - kept > 9.0, "view {i}: costs {kept} and {other}");
+        assert!(sol.reprojection_rms_px < alt.reprojection_rms_px, "view {i}: {sol:?}");
+        assert!(sol.ambiguity_ratio < 0.1, "view {i}: {}", sol.ambiguity_ratio);
+        if i == 0 {
+            let (r_true, _) = camera_pose(*pos, *att);
+            assert!(sol.camera_from_world.angle_to(&r_true) < geometry::deg(0.1));
+        }
+    }
+}
+
+#[test]
+fn when_both_minima_fit_the_image_gravity_decides_even_against_the_smaller_residual() {
+    // The far, nearly affine view with 0.3 px of noise: both minima fit within 3 sigma, and the noise gives the
+    // mirror the smaller residual. "Near level" keeps the true pose; the costs' sum is well above 9, so a test
+    // on the sum instead of the difference would let the residual decide.
+    let t = LineTarget { x_start_m: 0.0, x_end_m: 0.3, z_bottom_m: 3.7, z_top_m: 3.9 };
+    let pos = Vec3::new(0.15, 6.0, 0.8);
+    let att = Attitude::new(0.0, geometry::deg(-10.0), 0.0);
+    let (r_cw, c) = camera_pose(pos, att);
+    let mut s = 3u64.wrapping_mul(2654435761).wrapping_add(7);
+    let obs = project_observation(&CAM, &t, &r_cw, c, 3.0, 2.0, move || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        0.3 * (((s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0)
+    })
+    .expect("line in view");
+    let params = PoseParams { max_rms_px: 5.0, max_std_m: f32::INFINITY, ..PoseParams::default() };
+    let mount = CameraMount::FORWARD_AT_CENTRE;
+    let sol = solve_pose(&obs, &CAM, &t, &mount, AttitudeSource::ImageOnly, &params).unwrap();
+    let alt = sol.alternative.expect("a second minimum");
+    let (kept, other) = kept_and_alternative_costs(&obs, &t, &sol);
+    assert!((kept - other).abs() < 9.0 && kept + other > 9.0, "costs {kept} and {other}");
+    assert!(sol.reprojection_rms_px > alt.reprojection_rms_px && sol.ambiguity_ratio > 1.0, "{sol:?}");
+    let tilt = |r: &Mat3| libm::acosf(mount.body_from_camera.mul_mat(r).mul_vec(Vec3::Z).z.clamp(-1.0, 1.0));
+    assert!(tilt(&sol.camera_from_world) < tilt(&alt.camera_from_world));
+    assert!(sol.camera_from_world.angle_to(&r_cw) < alt.camera_from_world.angle_to(&r_cw));
+}
+
+#[test]
+fn a_mirror_that_refines_back_to_the_pose_is_no_alternative() {
+    // The ordinary view: the mirror pose is computed and refined, and it either returns to the same minimum or
+    // is implausible, so no alternative is reported and the ratio stays 0.
+    let (pos, att) = (
+        Vec3::new(1.0, 1.3, 0.8),
+        Attitude::new(geometry::deg(3.0), geometry::deg(-4.0), geometry::deg(6.0)),
+    );
+    let (r_cw, c) = camera_pose(pos, att);
+    assert!(mirror_pose(&r_cw, -r_cw.mul_vec(c - LineTarget::PAPER.center())).is_some());
+    let obs = exact(&LineTarget::PAPER, pos, att);
+    let mount = CameraMount::FORWARD_AT_CENTRE;
+    let sol =
+        solve_pose(&obs, &CAM, &LineTarget::PAPER, &mount, AttitudeSource::ImageOnly, &PoseParams::default())
+            .unwrap();
+    assert!(sol.alternative.is_none() && sol.ambiguity_ratio == 0.0, "{sol:?}");
+}
