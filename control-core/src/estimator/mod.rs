@@ -28,8 +28,6 @@ use geometry::frames::{Attitude, WORLD_FROM_NAV};
 use geometry::{Mat3, Quat, Vec3, wrap_pi};
 
 mod aiding;
-#[cfg(test)]
-mod edge_tests;
 mod history;
 #[cfg(test)]
 mod tests;

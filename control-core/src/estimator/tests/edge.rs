@@ -1,11 +1,11 @@
 //! Unit tests of the estimator's limits, counters and less-travelled paths: the time limits of delayed
 //! measurements at their exact bounds, the fix's consistency gate against its variance written out, the
 //! position reset after refusals, the floor, the compass's two refusals, the learned thrust axis, the
-//! integration of biased samples and long intervals. Each holds a behaviour that the tests in `tests.rs`
+//! integration of biased samples and long intervals. Each holds a behaviour that the other tests' files
 //! reached only through a closed loop (found by mutation testing, docs/mutation-testing.md).
-use super::tests::{field_reading, with_distinct_covariance as distinct, yaw_of};
+use super::with_distinct_covariance as distinct;
 use super::*;
-use crate::motion::{Block, MotionClass};
+use crate::motion::Block;
 
 const STD1CM: Vec3 = Vec3::new(0.01, 0.01, 0.01);
 
