@@ -12,6 +12,7 @@ use geometry::frames::Attitude;
 use protocol::{Downlink, Uplink};
 use serde_json::{Map, Value, json};
 use std::collections::BTreeMap;
+use std::io::Write;
 use std::path::Path;
 
 /// A topic's message: name, schema name, time (us), content.
@@ -324,10 +325,35 @@ pub fn export_mcap(
     records: impl Iterator<Item = LogItem>,
     path: &Path,
 ) -> Result<ExportSummary> {
-    let file = std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+    export_mcap_to(header, records, crate::files::AtomicFile::create(path)?)
+}
+
+/// [`export_mcap`] into `file` (renamed into place when complete). A failed write (a full disk) keeps what
+/// was written as `NAME.partial` (an MCAP without its summary, which `mcap recover` reads) and says so.
+pub fn export_mcap_to(
+    header: &LogHeader,
+    records: impl Iterator<Item = LogItem>,
+    file: crate::files::AtomicFile,
+) -> Result<ExportSummary> {
     let opts =
         mcap::WriteOptions::new().profile("").library(format!("sim-host {}", env!("CARGO_PKG_VERSION")));
-    let mut w = opts.create(std::io::BufWriter::with_capacity(1 << 20, file))?;
+    let mut w = opts.create(file)?;
+    let result = write_mcap(header, records, &mut w);
+    let file = w.into_inner();
+    match result {
+        Ok(summary) => {
+            file.commit()?;
+            Ok(summary)
+        }
+        Err(e) => Err(file.give_up(e)),
+    }
+}
+
+fn write_mcap(
+    header: &LogHeader,
+    records: impl Iterator<Item = LogItem>,
+    w: &mut mcap::Writer<crate::files::AtomicFile>,
+) -> Result<ExportSummary> {
     // The log's header as MCAP metadata: the scenario and how it flew.
     let mut meta = BTreeMap::new();
     meta.insert("scenario_toml".to_string(), header.scenario_toml.clone());
@@ -341,7 +367,7 @@ pub fn export_mcap(
     let mut summary = ExportSummary::default();
     let mut msgs = Vec::new();
     let mut seq: BTreeMap<u16, u32> = BTreeMap::new();
-    let mut put = |w: &mut mcap::Writer<_>,
+    let mut put = |w: &mut mcap::Writer<crate::files::AtomicFile>,
                    topic: &'static str,
                    schema: &'static str,
                    time_us: u64,
@@ -369,13 +395,13 @@ pub fn export_mcap(
     for (step_us, r) in with_step_time(records, &mut summary.damage) {
         if let LogRecord::Frame(f) = &r {
             let (schema, v) = image_message(f);
-            put(&mut w, camera_topic(f.camera), schema, f.capture_time_us, &serde_json::to_vec(&v)?)?;
+            put(w, camera_topic(f.camera), schema, f.capture_time_us, &serde_json::to_vec(&v)?)?;
             continue;
         }
         msgs.clear();
         topics(&r, step_us, &mut msgs);
         for m in &msgs {
-            put(&mut w, m.topic, m.schema, m.time_us, &serde_json::to_vec(&m.value)?)?;
+            put(w, m.topic, m.schema, m.time_us, &serde_json::to_vec(&m.value)?)?;
         }
     }
     w.finish()?;
@@ -442,7 +468,11 @@ pub fn export_csv(
             s.push_str(&cells.join(","));
             s.push('\n');
         }
-        std::fs::write(&path, s).with_context(|| format!("cannot write {}", path.display()))?;
+        let mut file = crate::files::AtomicFile::create(&path)?;
+        match file.write_all(s.as_bytes()) {
+            Ok(()) => file.commit()?,
+            Err(e) => return Err(file.give_up(e.into())),
+        }
     }
     Ok(summary)
 }

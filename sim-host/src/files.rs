@@ -41,6 +41,27 @@ pub fn refuse_overwrite(out: &Path, inputs: &[&Path]) -> Result<()> {
     Ok(())
 }
 
+/// Refuses, before anything is written, every output that [`refuse_overwrite`] refuses, and two outputs that
+/// are one file (the second would replace the first).
+pub fn refuse_overwrites(outputs: &[&Path], inputs: &[&Path]) -> Result<()> {
+    for o in outputs {
+        refuse_overwrite(o, inputs)?;
+    }
+    for (i, a) in outputs.iter().enumerate() {
+        let Some(ra) = resolve(a) else { continue };
+        for b in &outputs[i + 1..] {
+            if resolve(b).as_ref() == Some(&ra) {
+                bail!(
+                    "refusing to write {} and {}: they are one file, and the second would replace the first",
+                    a.display(),
+                    b.display()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The last component of `path` (empty for a path without one, such as `/`, whose file then cannot be
 /// created anyway).
 fn file_name(path: &Path) -> String {
@@ -55,6 +76,8 @@ pub struct AtomicFile {
     file: Option<std::io::BufWriter<std::fs::File>>,
     /// Bytes the file may still take before writes fail as on a full disk (tests of that path only).
     space: Option<u64>,
+    /// Bytes accepted by `write` so far.
+    written: u64,
 }
 
 impl AtomicFile {
@@ -67,6 +90,7 @@ impl AtomicFile {
             tmp,
             file: Some(std::io::BufWriter::with_capacity(1 << 20, f)),
             space: None,
+            written: 0,
         })
     }
 
@@ -97,6 +121,25 @@ impl AtomicFile {
                 .with_context(|| format!("cannot keep the unfinished file as {}", kept.display()))?;
         }
         Ok(kept)
+    }
+
+    /// Gives up after `error` (a failed write: a full disk, a device gone) and keeps what reached the disk,
+    /// as [`AtomicFile::keep_partial`]; returns the error that says so, naming the file, the bytes written
+    /// and where they are kept.
+    pub fn give_up(self, error: anyhow::Error) -> anyhow::Error {
+        let path = self.path.clone();
+        let written = self.written;
+        match self.keep_partial() {
+            Ok(kept) => error.context(format!(
+                "writing {} failed after {written} bytes; what reached the disk is kept in {}",
+                path.display(),
+                kept.display()
+            )),
+            Err(k) => error.context(format!(
+                "writing {} failed after {written} bytes, and what was written could not be kept: {k:#}",
+                path.display()
+            )),
+        }
     }
 
     /// The destination.
@@ -135,6 +178,7 @@ impl Write for AtomicFile {
                 if let Some(n) = self.space.as_mut() {
                     *n -= k as u64;
                 }
+                self.written += k as u64;
                 Ok(k)
             }
             None => Err(std::io::Error::other("file already committed")),
@@ -144,6 +188,16 @@ impl Write for AtomicFile {
         match self.file.as_mut() {
             Some(f) => f.flush(),
             None => Ok(()),
+        }
+    }
+}
+
+/// Seeking (for formats that go back to fill in a length, as MCAP's chunks do) flushes the buffer first.
+impl std::io::Seek for AtomicFile {
+    fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+        match self.file.as_mut() {
+            Some(f) => f.seek(pos),
+            None => Err(std::io::Error::other("file already committed")),
         }
     }
 }

@@ -389,11 +389,21 @@ impl LogWriter {
         self.out.keep_partial()
     }
 
-    /// Writes the end record, flushes to disk and moves the file into place under its name.
+    /// Gives up after `error` (a failed write): what reached the disk is kept as `NAME.partial`, and the error
+    /// returned says so, with the records written.
+    pub fn give_up(self, error: anyhow::Error) -> anyhow::Error {
+        let records = self.records;
+        self.out.give_up(error.context(format!("{records} records had been written")))
+    }
+
+    /// Writes the end record, flushes to disk and moves the file into place under its name (a failure to
+    /// write the end record keeps what was written, as [`LogWriter::give_up`]).
     pub fn finish(mut self) -> Result<()> {
         let end = LogRecord::End { records: self.records, crc32: self.crc.clone().finalize() };
         let frame = record_frame(&end)?;
-        self.out.write_all(&frame)?;
+        if let Err(e) = self.out.write_all(&frame) {
+            return Err(self.give_up(e.into()));
+        }
         self.bytes += frame.len() as u64;
         self.out.commit()
     }

@@ -62,6 +62,18 @@ pub fn tilt_bound_deg(s: &Scenario) -> f64 {
     (roll.tan().powi(2) + pitch.tan().powi(2)).sqrt().atan().to_degrees()
 }
 
+/// The plots [`write_plots`] writes, by file name.
+pub const PLOT_FILES: [&str; 5] = ["x.png", "y.png", "z.png", "vx.png", "vy.png"];
+
+/// Every file a flight may write into its output directory (the drawn scenario of a sweep's run, the log, the
+/// CSV files, the plots, the summary), so that a command can refuse one that is an input before it starts.
+pub fn output_files(out: &Path) -> Vec<PathBuf> {
+    let mut names =
+        vec!["scenario.toml", crate::flightlog::LOG_FILE, "trajectory.csv", "flow.csv", "summary.json"];
+    names.extend(PLOT_FILES);
+    names.into_iter().map(|n| out.join(n)).collect()
+}
+
 /// Flies the scenario; `progress(sim_time_s, end_s)` is called about every 0.1 s of simulated time.
 pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyResult> {
     std::fs::create_dir_all(&opts.out).with_context(|| format!("cannot create {}", opts.out.display()))?;
@@ -110,8 +122,7 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
     }
     let summary = summary_json(opts, &stats, wall, &files);
     let path = opts.out.join("summary.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&summary)? + "\n")
-        .with_context(|| format!("cannot write {}", path.display()))?;
+    crate::files::write_atomic(&path, (serde_json::to_string_pretty(&summary)? + "\n").as_bytes())?;
     files.push(path);
     Ok(FlyResult { stats, wall_time_s: wall, summary, files })
 }
@@ -272,7 +283,7 @@ pub fn write_trajectory_csv(path: &Path, records: &[Record]) -> Result<()> {
         let age = if r.fix_age_s.is_finite() { format!("{:.3}", r.fix_age_s) } else { String::new() };
         s.push_str(&format!(",{:?},{}\n", r.mode, age));
     }
-    std::fs::write(path, s).with_context(|| format!("cannot write {}", path.display()))
+    crate::files::write_atomic(path, s.as_bytes())
 }
 
 /// Writes the flow velocities against the truth as CSV.
@@ -285,7 +296,7 @@ pub fn write_flow_csv(path: &Path, records: &[FlowRecord]) -> Result<()> {
             r.t_s, r.measured[0], r.measured[1], r.truth[0], r.truth[1], r.std_m_s
         ));
     }
-    std::fs::write(path, s).with_context(|| format!("cannot write {}", path.display()))
+    crate::files::write_atomic(path, s.as_bytes())
 }
 
 /// Writes x, y, z and the horizontal velocities over time (truth, estimate, desired, and the optical flow's
@@ -302,7 +313,7 @@ pub fn write_plots(dir: &Path, records: &[Record], flow: &[FlowRecord]) -> Resul
         (Some(a), Some(b)) => vec![(*a, *b, "tracking")],
         _ => vec![],
     };
-    let panels: [(&str, &str, &str, usize, bool); 5] = [
+    let panels: [(&str, &str, &str, usize, bool); PLOT_FILES.len()] = [
         ("x.png", "x: along the line (paper Fig. 8)", "x (m)", 0, false),
         ("y.png", "y: distance to the wall (paper Fig. 7)", "y (m)", 1, false),
         ("z.png", "z: altitude (paper Fig. 9)", "z (m)", 2, false),

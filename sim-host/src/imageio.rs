@@ -1,6 +1,6 @@
 //! Owned images and PNG input/output.
 use std::fs::File;
-use std::io::{BufReader, BufWriter};
+use std::io::BufReader;
 use std::path::Path;
 
 /// An owned, tightly packed 8-bit RGB image.
@@ -169,9 +169,11 @@ fn to_gray((info, buf): (png::OutputInfo, Vec<u8>)) -> Result<GrayImage, ImageIo
     Ok(GrayImage { width: w, height: h, data })
 }
 
+/// Encodes and writes through a temporary file renamed into place ([`crate::files::AtomicFile`]).
 fn write(path: &Path, w: usize, h: usize, color: png::ColorType, data: &[u8]) -> anyhow::Result<()> {
-    let file = File::create(path).map_err(|e| anyhow::anyhow!("cannot create {}: {e}", path.display()))?;
-    encode_to(BufWriter::new(file), w, h, color, data)
+    let mut bytes = Vec::new();
+    encode_to(&mut bytes, w, h, color, data)?;
+    crate::files::write_atomic(path, &bytes)
 }
 
 fn encode_to<W: std::io::Write>(

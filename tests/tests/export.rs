@@ -159,3 +159,20 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
     assert_eq!(frames.lines().count(), 1 + 91 + 181);
     let _ = std::fs::remove_dir_all(&out);
 }
+
+#[test]
+fn a_full_disk_keeps_what_the_mcap_export_wrote_and_says_so() {
+    let log_path = system_tests::fly_logged("export-full", 2, 2.0, CameraMode::Analytic, FramePolicy::Drop);
+    let out = log_path.parent().unwrap().join("full.mcap");
+    let header = open_log(&log_path).unwrap().header.clone();
+    let file = sim_host::files::AtomicFile::create_with_space(&out, 50_000).unwrap();
+    let e = sim_host::export::export_mcap_to(&header, open_log(&log_path).unwrap(), file).unwrap_err();
+    let msg = format!("{e:#}");
+    let kept = sim_host::files::AtomicFile::partial_path(&out);
+    assert!(msg.contains("full.mcap") && msg.contains(&*kept.to_string_lossy()), "{msg}");
+    assert!(!out.exists(), "no file under the final name");
+    let bytes = std::fs::read(&kept).unwrap();
+    assert_eq!(bytes.len(), 50_000, "everything that reached the disk is kept");
+    assert!(bytes.starts_with(b"\x89MCAP0\r\n"));
+    std::fs::remove_file(&kept).unwrap();
+}

@@ -20,6 +20,25 @@ pub(crate) fn run_export(a: &ExportArgs) -> Result<ExitCode> {
     if a.mcap.is_none() && a.csv.is_none() {
         bail!("nothing to export: give --mcap FILE and/or --csv DIR");
     }
+    let outputs: Vec<&std::path::Path> =
+        [a.mcap.as_deref(), a.csv.as_deref()].into_iter().flatten().collect();
+    sim_host::files::refuse_overwrites(&outputs, &[&a.log])?;
+    if let Some(dir) = &a.csv {
+        // A CSV file is named after its topic (`/estimate/pose` -> `estimate_pose.csv`): a log in that
+        // directory with a `.csv` name could be one of them.
+        let in_dir = match (a.log.canonicalize(), dir.canonicalize()) {
+            (Ok(log), Ok(d)) => log.parent() == Some(d.as_path()),
+            _ => false,
+        };
+        if in_dir && a.log.extension().is_some_and(|e| e == "csv") {
+            bail!(
+                "refusing to write CSV files into {}: the input {} is there with a name an exported topic may \
+                 take (choose another directory)",
+                dir.display(),
+                a.log.display()
+            );
+        }
+    }
     let file_len = std::fs::metadata(&a.log).map(|m| m.len()).unwrap_or(0);
     let mut damaged = false;
     let outputs: [(Option<&PathBuf>, bool); 2] = [(a.mcap.as_ref(), true), (a.csv.as_ref(), false)];

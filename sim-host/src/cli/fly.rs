@@ -76,6 +76,13 @@ pub(crate) struct FlyArgs {
 }
 pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
     use sim_host::fly::{FlyOptions, fly};
+    // Nothing a flight writes may replace what it reads (the scenario, the sweep's draws, the firmware).
+    let fc_elf = a.fc.strip_prefix("qemu:").map(std::path::Path::new);
+    let mut inputs = vec![std::path::Path::new(&a.scenario)];
+    inputs.extend(a.vary.as_deref());
+    inputs.extend(fc_elf);
+    let outputs = sim_host::fly::output_files(&a.out);
+    sim_host::files::refuse_overwrites(&outputs.iter().map(|p| p.as_path()).collect::<Vec<_>>(), &inputs)?;
     let mut scenario = Scenario::load(&a.scenario)?;
     let mut seed = a.seed;
     if let (Some(vary), Some(k)) = (&a.vary, a.run) {

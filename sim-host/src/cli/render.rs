@@ -134,6 +134,7 @@ pub(crate) fn with_overrides(a: &RenderArgs, mut scenario: Scenario) -> Result<S
 }
 
 pub(crate) fn render(a: &RenderArgs) -> Result<ExitCode> {
+    sim_host::files::refuse_overwrite(&a.out, &[std::path::Path::new(&a.scenario)])?;
     let scenario = Scenario::load(&a.scenario)?;
     let pose = parse_floats::<6>(&a.pose, "--pose")?;
     // A vehicle in the room: positions within 100 m of the origin, angles within one turn (a pose far outside

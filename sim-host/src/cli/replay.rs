@@ -41,9 +41,8 @@ pub(crate) fn replay(a: &ReplayArgs) -> Result<ExitCode> {
             value.trim().parse().map_err(|_| anyhow::anyhow!("--set {kv}: `{value}` is not a number"))?;
         overrides.push((id, v));
     }
-    for out in a.out.iter().chain(a.summary.iter()) {
-        sim_host::files::refuse_overwrite(out, &[&a.log])?;
-    }
+    let outputs: Vec<&std::path::Path> = a.out.iter().chain(a.summary.iter()).map(|p| p.as_path()).collect();
+    sim_host::files::refuse_overwrites(&outputs, &[&a.log])?;
     // Replaying from vision results without writing a new log never looks at the frames: skip them unread.
     let reader = sim_host::flightlog::open_log(&a.log)?.skip_frames(!a.from_frames && a.out.is_none());
     let header = reader.header.clone();

@@ -101,6 +101,11 @@ fn run(a: &SweepRunArgs) -> Result<ExitCode> {
         Some(s) => Shard::parse(s)?,
         None => Shard::from_env(|k| std::env::var(k).ok(), a.shards)?.unwrap_or(Shard::ALL),
     };
+    let outputs = sim_host::sweep::output_files(&a.out);
+    sim_host::files::refuse_overwrites(
+        &outputs.iter().map(|p| p.as_path()).collect::<Vec<_>>(),
+        &[std::path::Path::new(&a.scenario), &a.vary],
+    )?;
     let opts = SweepOptions {
         scenario: Scenario::load(&a.scenario)?,
         scenario_arg: a.scenario.clone(),
@@ -147,6 +152,11 @@ fn run(a: &SweepRunArgs) -> Result<ExitCode> {
 }
 
 fn merge(a: &MergeArgs) -> Result<ExitCode> {
+    let outputs = sim_host::sweep::output_files(&a.out);
+    sim_host::files::refuse_overwrites(
+        &outputs.iter().map(|p| p.as_path()).collect::<Vec<_>>(),
+        &a.dirs.iter().map(|p| p.as_path()).collect::<Vec<_>>(),
+    )?;
     let r = sim_host::sweep::merge(&a.dirs, &a.out)?;
     print_report(&r.report, &r.files)
 }

@@ -80,6 +80,9 @@ pub(crate) struct PoseArgs {
     pub(crate) overlay: Option<PathBuf>,
 }
 pub(crate) fn vision_pose(a: &PoseArgs) -> Result<ExitCode> {
+    if let Some(overlay) = &a.overlay {
+        sim_host::files::refuse_overwrite(overlay, &[&a.image, std::path::Path::new(&a.scenario)])?;
+    }
     let scenario = Scenario::load(&a.scenario)?;
     let mut img = read_png_rgb(&a.image).with_context(|| format!("{}", a.image.display()))?;
     let cam = scenario.forward_camera_model();

@@ -210,6 +210,22 @@ pub fn write_import(
     header: LogHeader,
     out: &std::path::Path,
     extras: &mut dyn ExtraRecords,
+    progress: impl FnMut(f64),
+) -> Result<ImportSummary> {
+    window.validate()?;
+    let file = crate::files::AtomicFile::create(out)?;
+    write_import_on(data, window, scenario, header, file, extras, progress)
+}
+
+/// [`write_import`] into `file` (renamed into place when complete). A failed write (a full disk) keeps what
+/// was written as `NAME.partial`, a log that reads as truncated after its last whole record, and says so.
+pub fn write_import_on(
+    data: &ImportData,
+    window: &Window,
+    scenario: &Scenario,
+    header: LogHeader,
+    file: crate::files::AtomicFile,
+    extras: &mut dyn ExtraRecords,
     mut progress: impl FnMut(f64),
 ) -> Result<ImportSummary> {
     window.validate()?;
@@ -249,7 +265,7 @@ pub fn write_import(
         }
     }
     let rebase = |t: u64| t.saturating_sub(t_start);
-    let mut w = LogWriter::create(out, &header)?;
+    let mut w = LogWriter::create_on(file, &header)?;
     let (mut next_imu, mut next_mag, mut next_ref, mut next_land) = (0usize, 0usize, 0usize, 0usize);
     while next_mag < data.mag.len() && data.mag[next_mag].0 < t_start {
         next_mag += 1;
@@ -300,7 +316,10 @@ pub fn write_import(
         }
         records.push(LogRecord::Step(step));
         for r in &records {
-            w.write(r)?;
+            if let Err(e) = w.write(r) {
+                // A full disk: what was written is kept and named.
+                return Err(w.give_up(e));
+            }
         }
         summary.steps += 1;
         summary.seconds = rebase(t) as f64 * 1e-6;
@@ -361,6 +380,30 @@ mod tests {
         assert_eq!(needed_decimation(&fast, 2000), 2);
         let slow: Vec<_> = (0..200u64).map(|k| s(k * 5000, 0.0)).collect();
         assert_eq!(needed_decimation(&slow, 2000), 1);
+    }
+
+    #[test]
+    fn a_full_disk_keeps_what_the_import_wrote_and_says_so() {
+        let dir = std::env::temp_dir().join(format!("wlq-import-full-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let out = dir.join("imported.log");
+        // 4 s of a still IMU at 1 kHz: about 200 kB of steps, on a disk with room for 20 kB.
+        let data = ImportData { imu: (1..4000u64).map(|k| s(k * 1000, 0.0)).collect(), ..ImportData::default() };
+        let scenario = Scenario::paper();
+        let header = import_header(&scenario, "test".into(), "none".into(), String::new(), false).unwrap();
+        let file = crate::files::AtomicFile::create_with_space(&out, 20_000).unwrap();
+        let e = write_import_on(&data, &Window::default(), &scenario, header, file, &mut NoExtras, |_| {})
+            .unwrap_err();
+        let msg = format!("{e:#}");
+        let kept = crate::files::AtomicFile::partial_path(&out);
+        assert!(msg.contains("imported.log") && msg.contains(&*kept.to_string_lossy()), "{msg}");
+        assert!(msg.contains("records had been written") && msg.contains("no space left"), "{msg}");
+        assert!(!out.exists(), "no file under the final name");
+        // What was kept reads as a log truncated after its last whole record, every record before it intact.
+        let log = crate::flightlog::read_log(&kept).unwrap();
+        assert!(log.records.len() > 50, "{} records kept", log.records.len());
+        assert!(!log.damage.is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

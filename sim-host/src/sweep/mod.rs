@@ -237,6 +237,21 @@ pub fn sweep(o: &SweepOptions, progress: &(dyn Fn() + Sync)) -> Result<SweepResu
     write_outputs(&o.out, &header, &rows, &meta)
 }
 
+/// Every file a sweep or a merge writes into its output directory.
+pub fn output_files(out: &Path) -> Vec<PathBuf> {
+    [
+        "runs.csv",
+        "sweep.json",
+        "report.json",
+        "histogram_rms_x.png",
+        "histogram_rms_y.png",
+        "histogram_rms_z.png",
+    ]
+    .into_iter()
+    .map(|n| out.join(n))
+    .collect()
+}
+
 /// Merges shards' outputs into the report of the whole sweep.
 pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<SweepResult> {
     if dirs.is_empty() {
