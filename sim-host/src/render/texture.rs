@@ -1,5 +1,6 @@
 //! Procedural textures (multi-octave value noise plus speckle), baked into a table of brightness multipliers.
 use crate::rng::splitmix64;
+use rayon::prelude::*;
 
 /// A baked texture over a rectangle of a plane: `multiplier(a, b)` around 1.0.
 #[derive(Clone, Debug)]
@@ -64,8 +65,9 @@ impl Texture {
                 TextureKind::Concrete => &[(0.4, 0.25), (0.08, 0.25), (0.02, 0.25), (0.006, 0.25)],
                 TextureKind::Speckled => &[(0.3, 0.15), (0.05, 0.15), (0.01, 0.2)],
             };
-            for j in 0..height {
-                for i in 0..width {
+            // Each texel is a pure function of its position: rows are baked on the thread pool.
+            data.par_chunks_mut(width).enumerate().for_each(|(j, row)| {
+                for (i, texel) in row.iter_mut().enumerate() {
                     let (x, y) =
                         (origin[0] + (i as f64 + 0.5) * texel_m, origin[1] + (j as f64 + 0.5) * texel_m);
                     let mut v = 0.0f32;
@@ -94,9 +96,9 @@ impl Texture {
                             v += ((h >> 32) as f32 / u32::MAX as f32) * 2.4 - 1.2;
                         }
                     }
-                    data[j * width + i] = (1.0 + contrast as f32 * v).max(0.05);
+                    *texel = (1.0 + contrast as f32 * v).max(0.05);
                 }
-            }
+            });
         }
         Self {
             width,
