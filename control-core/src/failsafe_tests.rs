@@ -1,11 +1,12 @@
 //! Host tests of the modes and of every failsafe transition.
 //!
-//! The harness moves a kinematic vehicle toward the flight code's setpoint (first order, 0.3 s), synthesises a
+//! The harness moves a kinematic vehicle toward the flight code's setpoint (second order, 0.3 s; the
+//! setpoint's velocity fed forward when asked), synthesises a
 //! consistent IMU (level, specific force `a + g` behind a first-order 98 Hz anti-alias filter, as a real MEMS
 //! part has: the touchdown's stop is spread over a few samples, not one), and delivers vision fixes and link messages as scripted,
 //! so that the mode logic is exercised without the full simulator.
 use super::*;
-use crate::estimator::{ImuSample, PositionFix};
+use crate::estimator::{BodyVelocity, ImuSample, PositionFix};
 
 struct Harness {
     core: ControlCore,
@@ -16,10 +17,18 @@ struct Harness {
     imu_on: bool,
     imu_nan: bool,
     vision_on: bool,
+    /// A flow velocity (the vehicle's, body frame) every 17 ms.
+    flow_on: bool,
     link_on: bool,
     /// The vehicle brings its estimate, not its true position, to the setpoint (as the closed loop does: an
     /// estimate's error becomes the vehicle's).
     tracks_estimate: bool,
+    /// The vehicle follows the setpoint's velocity as well as its position (as the laws do); without it, the
+    /// position alone.
+    follows_velocity: bool,
+    /// An acceleration the vehicle undergoes (a gust) for the next `push_samples` IMU samples.
+    push: Vec3,
+    push_samples: u32,
     out: Option<ControlOutputs>,
     /// The accelerometer's filter state.
     accel_lp: Vec3,
@@ -29,10 +38,16 @@ struct Harness {
 
 impl Harness {
     fn new() -> Self {
+        Self::with(|_| {})
+    }
+
+    /// A harness whose paper parameters `edit` changes.
+    fn with(edit: impl FnOnce(&mut FlightParams)) -> Self {
         let mut params = FlightParams::paper();
         // The kinematic vehicle accelerates level, which no quadrotor can: the estimator's rotor-drag model
         // (the specific force across the thrust axis is drag alone) does not hold for it.
         params.estimator.drag_coeff_per_s = 0.0;
+        edit(&mut params);
         let home = Vec3::from_array(params.home_m);
         Self {
             core: ControlCore::new(params).unwrap(),
@@ -43,8 +58,12 @@ impl Harness {
             imu_on: true,
             imu_nan: false,
             vision_on: true,
+            flow_on: false,
             link_on: true,
             tracks_estimate: false,
+            follows_velocity: false,
+            push: Vec3::ZERO,
+            push_samples: 0,
             out: None,
             accel_lp: Vec3::new(0.0, 0.0, GRAVITY),
             trail: [home; 32],
@@ -61,7 +80,7 @@ impl Harness {
         let offset = |o: &ControlOutputs| {
             if self.tracks_estimate { self.p - o.estimate.position_m } else { Vec3::ZERO }
         };
-        let sp = self.out.map(|o| o.setpoint.position_m + offset(&o));
+        let sp = self.out.map(|o| (o.setpoint.position_m + offset(&o), o.setpoint.velocity_m_s));
         let airborne =
             self.out.is_some_and(|o| o.status.mode.airborne() && o.motors_rad_s.iter().any(|w| *w > 0.0));
         let mut acc;
@@ -69,8 +88,9 @@ impl Harness {
             self.t_us += 1000;
             // Kinematic follower of the setpoint while flying; resting otherwise.
             let v_before = self.v;
-            if let (true, Some(target)) = (airborne, sp) {
-                let a = (target - self.p) * (1.0 / 0.09) - self.v * (2.0 / 0.3);
+            if let (true, Some((target, v_ref))) = (airborne, sp) {
+                let v_ff = if self.follows_velocity { v_ref } else { Vec3::ZERO };
+                let a = (target - self.p) * (1.0 / 0.09) + (v_ff - self.v) * (2.0 / 0.3);
                 self.v += a * 0.001;
                 self.p += self.v * 0.001;
                 if self.p.z < 0.06 {
@@ -79,6 +99,10 @@ impl Harness {
                 }
             } else {
                 self.v = Vec3::ZERO;
+            }
+            if self.push_samples > 0 {
+                self.push_samples -= 1;
+                self.v += self.push * 0.001;
             }
             // The accelerometer feels the actual change of velocity (the floor's reaction included).
             acc = (self.v - v_before) * 1000.0;
@@ -103,6 +127,13 @@ impl Harness {
                     yaw_std_rad: 0.002,
                 }
             });
+        // The flow's velocity in the body frame (level, facing the wall: the navigation frame's axes).
+        let v_body = geometry::frames::WORLD_FROM_NAV.tmul_vec(self.v);
+        let flow = (self.flow_on && (self.t_us / 2000).is_multiple_of(17)).then(|| BodyVelocity {
+            time_us: self.t_us - 10_000,
+            velocity_m_s: [v_body.x, v_body.y],
+            std_m_s: 0.02,
+        });
         self.trail.rotate_right(1);
         self.trail[0] = self.p;
         let imu_slice: &[ImuSample] = if self.imu_on { &imu } else { &[] };
@@ -111,7 +142,7 @@ impl Harness {
             imu: imu_slice,
             mag: None,
             fix,
-            flow: None,
+            flow,
             command: cmd,
             link_message: self.link_on,
             landed: None,
@@ -141,7 +172,12 @@ impl Harness {
 
     /// Armed, airborne and hovering.
     fn hovering() -> Self {
-        let mut h = Harness::new();
+        Self::hovering_with(|_| {})
+    }
+
+    /// As [`Harness::hovering`], with parameters changed by `edit`.
+    fn hovering_with(edit: impl FnOnce(&mut FlightParams)) -> Self {
+        let mut h = Harness::with(edit);
         h.run(1.0);
         assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
         assert_eq!(h.command(Command::TakeOff), Some(CommandResult::Accepted(Command::TakeOff)));
@@ -225,6 +261,80 @@ fn vision_lost_holds_then_lands() {
     h.run_until(FlightMode::Landing, 1.0);
     assert_eq!(h.out.unwrap().status.failsafe, Some(Failsafe::VisionLostLanding));
     h.run_until(FlightMode::Disarmed, 20.0);
+}
+
+#[test]
+fn a_blind_hold_and_landing_back_away_from_the_wall_at_most_the_set_distance() {
+    let fs = FlightParams::paper().failsafe;
+    let mut h = Harness::hovering();
+    h.follows_velocity = true;
+    let y0 = h.p.y;
+    h.vision_on = false;
+    h.run_until(FlightMode::VisionHold, 1.0);
+    // Holding blind: the reference's velocity is the retreat's, away from the wall (+y), and the vehicle goes.
+    h.run(1.0);
+    let out = h.step(None);
+    assert_eq!(out.setpoint.velocity_m_s.y, fs.blind_retreat_speed_m_s);
+    assert_eq!((out.setpoint.velocity_m_s.x, out.setpoint.velocity_m_s.z), (0.0, 0.0));
+    assert!(h.p.y > y0 + 0.1, "moved {} m from the wall", h.p.y - y0);
+    // The landing that follows goes on backing away until the set distance, then holds its place.
+    h.run_until(FlightMode::Landing, 3.0);
+    assert_eq!(h.step(None).setpoint.velocity_m_s.y, fs.blind_retreat_speed_m_s);
+    h.run_until(FlightMode::Disarmed, 20.0);
+    let moved = h.p.y - y0;
+    assert!(
+        (moved - fs.blind_retreat_max_m).abs() < 0.05,
+        "moved {moved} m, at most {}",
+        fs.blind_retreat_max_m
+    );
+}
+
+#[test]
+fn a_hold_entered_at_speed_keeps_its_reference_on_the_estimate_and_never_pushes_the_motion_on() {
+    // Vision lost while the vehicle moves toward the wall faster than the reference's rate limit. The hold's
+    // horizontal reference is the estimate itself, its velocity zero (or the blind retreat's, away from the
+    // wall): a rate-limited reference would fall behind the estimate with a velocity along the motion, which
+    // the laws feed forward, into the wall.
+    let mut h = Harness::hovering();
+    h.vision_on = false;
+    h.run_until(FlightMode::VisionHold, 1.0);
+    // A gust of 8 m/s^2 toward the wall for 0.15 s.
+    h.push = Vec3::new(0.0, -8.0, 0.0);
+    h.push_samples = 150;
+    let mut fastest = 0.0f32;
+    for _ in 0..250 {
+        let out = h.step(None);
+        let (sp, est) = (out.setpoint, out.estimate);
+        fastest = fastest.min(est.velocity_m_s.y);
+        assert_eq!((sp.position_m.x, sp.position_m.y), (est.position_m.x, est.position_m.y));
+        assert_eq!(sp.velocity_m_s.x, 0.0);
+        assert!(sp.velocity_m_s.y >= 0.0, "the reference pushes toward the wall at {}", sp.velocity_m_s.y);
+    }
+    assert!(fastest < -0.5, "the estimate saw the motion: {fastest} m/s");
+}
+
+#[test]
+fn a_hold_with_flow_or_a_retreat_of_zero_stays_where_it_is() {
+    // The flow measures the velocity: the hold is not blind, nothing drifts, nothing backs away.
+    let mut h = Harness::hovering();
+    h.follows_velocity = true;
+    h.flow_on = true;
+    h.run(0.5);
+    let y0 = h.p.y;
+    h.vision_on = false;
+    h.run_until(FlightMode::VisionHold, 1.0);
+    h.run(2.0);
+    assert_eq!(h.step(None).setpoint.velocity_m_s.y, 0.0);
+    assert!((h.p.y - y0).abs() < 0.02, "moved {} m", h.p.y - y0);
+    // Blind, with the retreat switched off: the hold damps the velocity where it is.
+    let mut h = Harness::hovering_with(|p| p.failsafe.blind_retreat_speed_m_s = 0.0);
+    h.follows_velocity = true;
+    let y0 = h.p.y;
+    h.vision_on = false;
+    h.run_until(FlightMode::VisionHold, 1.0);
+    h.run(2.0);
+    assert_eq!(h.step(None).setpoint.velocity_m_s.y, 0.0);
+    assert!((h.p.y - y0).abs() < 0.02, "moved {} m", h.p.y - y0);
 }
 
 #[test]

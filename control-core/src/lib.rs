@@ -304,6 +304,10 @@ pub struct ControlCore {
     last_imu_us: Option<u64>,
     first_imu_us: Option<u64>,
     last_fix_us: Option<u64>,
+    /// When a flow velocity was last accepted.
+    last_flow_us: Option<u64>,
+    /// How far a blind hold or landing has moved away from the wall since it went blind (m).
+    retreat_m: f32,
     last_link_us: Option<u64>,
     airborne_since_us: u64,
     hold_since_us: u64,
@@ -360,6 +364,8 @@ impl ControlCore {
             last_imu_us: None,
             first_imu_us: None,
             last_fix_us: None,
+            last_flow_us: None,
+            retreat_m: 0.0,
             last_link_us: None,
             airborne_since_us: 0,
             hold_since_us: 0,
@@ -575,8 +581,10 @@ impl ControlCore {
             }
             fix_outcome = Some(o);
         }
-        if let Some(f) = inp.flow {
-            self.estimator.fuse_body_velocity(&f, now);
+        if let Some(f) = inp.flow
+            && self.estimator.fuse_body_velocity(&f, now) == FuseOutcome::Accepted
+        {
+            self.last_flow_us = Some(now);
         }
         // Nothing sinks through the floor (the pad's height is where the centre of mass rests on it).
         let at_floor = self.estimator.constrain_above_floor(traj.ground_height_m);
@@ -707,11 +715,33 @@ impl ControlCore {
         // Vision holds the position (a fix accepted within `vision_hold_after_s`).
         let vision_fresh =
             self.last_fix_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.vision_hold_after_s);
+        // Nothing measures the position or the velocity: a hold or a landing backs away from the wall (see
+        // `failsafe.blind_retreat_speed_m_s`), at most `blind_retreat_max_m` per blind spell.
+        let flow_fresh =
+            self.last_flow_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.vision_hold_after_s);
+        let blind =
+            matches!(self.mode, FlightMode::VisionHold | FlightMode::Landing) && !vision_fresh && !flow_fresh;
+        let retreat_step = if blind && self.retreat_m < fs.blind_retreat_max_m {
+            let d = (fs.blind_retreat_speed_m_s * dt).min(fs.blind_retreat_max_m - self.retreat_m);
+            self.retreat_m += d;
+            d
+        } else {
+            if !blind {
+                self.retreat_m = 0.0;
+            }
+            0.0
+        };
+        let retreat_speed = if retreat_step > 0.0 { fs.blind_retreat_speed_m_s } else { 0.0 };
 
         // Mission progress and the reference.
         let mut sp = Setpoint { position_m: self.hold, yaw_rad: self.yaw_d, ..Setpoint::default() };
         match self.mode {
             FlightMode::TakeOff | FlightMode::Landing => {
+                if self.mode == FlightMode::Landing && retreat_step > 0.0 {
+                    self.hold.y += retreat_step;
+                    sp.position_m.y = self.hold.y;
+                    sp.velocity_m_s.y = retreat_speed;
+                }
                 if let Some((mv, t0)) = self.vertical {
                     let (z, vz, az) = mv.eval(now.saturating_sub(t0) as f32 * 1e-6);
                     sp.position_m.z = z;
@@ -777,9 +807,11 @@ impl ControlCore {
                 }
             }
             FlightMode::VisionHold => {
-                // Hold attitude and altitude: damp the horizontal velocity, no position reference.
+                // Hold attitude and altitude: damp the horizontal velocity, no position reference (blind: back
+                // away from the wall).
                 sp.position_m.x = est.position_m.x;
                 sp.position_m.y = est.position_m.y;
+                sp.velocity_m_s.y = retreat_speed;
             }
             _ => {}
         }
@@ -792,6 +824,18 @@ impl ControlCore {
             let h = traj.speed_m_s.max(traj.takeoff_speed_m_s) * SETPOINT_RATE_MARGIN;
             let v = traj.takeoff_speed_m_s.max(traj.landing_speed_m_s) * SETPOINT_RATE_MARGIN;
             sp = self.limiter.limit(&sp, h, v, dt);
+            if self.mode == FlightMode::VisionHold {
+                // The hold has no horizontal position reference: it damps the velocity where the vehicle is
+                // (blind, it backs away from the wall). Through the limiter an estimate that moves faster than
+                // the limit would leave the reference behind, with a velocity along the motion.
+                sp.position_m.x = est.position_m.x;
+                sp.position_m.y = est.position_m.y;
+                sp.velocity_m_s.x = 0.0;
+                sp.velocity_m_s.y = retreat_speed;
+                sp.accel_m_s2.x = 0.0;
+                sp.accel_m_s2.y = 0.0;
+                self.limiter.restart(sp.position_m);
+            }
         }
 
         // Laws and mixer. The altitude integral works from lift-off (a vehicle heavier or lighter than

@@ -556,6 +556,13 @@ params_struct! {
         /// No message from the ground station for this long: land (s). Before that the vehicle holds as when
         /// vision is lost (the fixes and the flow come over the link), and goes on when the link returns.
         link_land_after_s: f32 = 3.0, { > 0.0, <= 600.0 } "s";
+        /// With no position aid at all (no vision fix and no flow velocity accepted for `vision_hold_after_s`:
+        /// a radio loss blinds both, since the ground station measures the frames) a hold or a landing moves
+        /// away from the wall at this speed (m/s; 0: stays). Dead reckoning drifts a metre in a few seconds
+        /// of turbulence, in any direction; the wall is the one obstacle the vehicle knows, and it is in front.
+        blind_retreat_speed_m_s: f32 = 0.2, { >= 0.0, <= 1.0 } "m/s";
+        /// ... for at most this far in one blind spell, by the estimate (m).
+        blind_retreat_max_m: f32 = 1.0, { >= 0.0, <= 5.0 } "m";
         /// No IMU sample for this long: motors off (s).
         imu_timeout_s: f32 = 0.05, { > 0.0, <= 1.0 } "s";
         /// Arming is refused when the vehicle is tilted more than this (rad).

@@ -388,7 +388,8 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let out = dir.join("imported.log");
         // 4 s of a still IMU at 1 kHz: about 200 kB of steps, on a disk with room for 20 kB.
-        let data = ImportData { imu: (1..4000u64).map(|k| s(k * 1000, 0.0)).collect(), ..ImportData::default() };
+        let data =
+            ImportData { imu: (1..4000u64).map(|k| s(k * 1000, 0.0)).collect(), ..ImportData::default() };
         let scenario = Scenario::paper();
         let header = import_header(&scenario, "test".into(), "none".into(), String::new(), false).unwrap();
         let file = crate::files::AtomicFile::create_with_space(&out, 20_000).unwrap();
