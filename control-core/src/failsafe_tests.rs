@@ -29,6 +29,9 @@ struct Harness {
     /// An acceleration the vehicle undergoes (a gust) for the next `push_samples` IMU samples.
     push: Vec3,
     push_samples: u32,
+    /// A gyro x reading held at this value (a saturated gyro) for the next `clip_samples` IMU samples.
+    clip_value: f32,
+    clip_samples: u32,
     out: Option<ControlOutputs>,
     /// The accelerometer's filter state.
     accel_lp: Vec3,
@@ -64,6 +67,8 @@ impl Harness {
             follows_velocity: false,
             push: Vec3::ZERO,
             push_samples: 0,
+            clip_value: 0.0,
+            clip_samples: 0,
             out: None,
             accel_lp: Vec3::new(0.0, 0.0, GRAVITY),
             trail: [home; 32],
@@ -112,7 +117,11 @@ impl Harness {
             // 1 - exp(-2 pi 98 Hz 1 ms)
             self.accel_lp += (raw - self.accel_lp) * 0.46;
             let f = self.accel_lp;
-            let bad = if self.imu_nan { f32::NAN } else { 0.0 };
+            let mut bad = if self.imu_nan { f32::NAN } else { 0.0 };
+            if self.clip_samples > 0 {
+                self.clip_samples -= 1;
+                bad += self.clip_value;
+            }
             *s = ImuSample { time_us: self.t_us, gyro_rad_s: [bad, 0.0, 0.0], accel_m_s2: f.to_array() };
         }
         let fix =
@@ -311,6 +320,35 @@ fn a_hold_entered_at_speed_keeps_its_reference_on_the_estimate_and_never_pushes_
         assert!(sp.velocity_m_s.y >= 0.0, "the reference pushes toward the wall at {}", sp.velocity_m_s.y);
     }
     assert!(fastest < -0.5, "the estimate saw the motion: {fastest} m/s");
+}
+
+#[test]
+fn a_sweep_waits_while_the_gyro_clips_and_goes_on_from_where_the_vehicle_is() {
+    let mut h = Harness::hovering();
+    h.command(Command::StartTracking);
+    h.run(1.0);
+    let moving = h.step(None).setpoint;
+    assert!(moving.velocity_m_s.x.abs() > 0.1, "sweeping: {:?}", moving.velocity_m_s);
+    // The gyro holds 0.5 rad/s on x for 20 ms (alternating signs, so that the attitude barely turns).
+    h.clip_value = 0.5;
+    h.clip_samples = 10;
+    h.run(0.01);
+    h.clip_value = -0.5;
+    h.clip_samples = 10;
+    h.run(0.01);
+    assert!(h.core.estimator().counters().gyro_clipped >= 18);
+    // The reference stops where it is while the last clipped reading is within GYRO_CLIP_PAUSE_S.
+    let x0 = h.step(None).setpoint.position_m.x;
+    for _ in 0..((GYRO_CLIP_PAUSE_S - 0.05) * 500.0) as usize {
+        let sp = h.step(None).setpoint;
+        assert_eq!(h.mode(), FlightMode::Tracking);
+        assert_eq!((sp.position_m.x, sp.velocity_m_s.x), (x0, 0.0));
+    }
+    // Then the pass goes on from where the vehicle is.
+    h.run(0.2);
+    let sp = h.step(None).setpoint;
+    assert!(sp.velocity_m_s.x.abs() > 0.01 && sp.velocity_m_s.x.signum() == moving.velocity_m_s.x.signum());
+    assert_eq!(h.step(None).status.passes_done, 0);
 }
 
 #[test]

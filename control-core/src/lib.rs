@@ -89,6 +89,11 @@ pub const TAKEOFF_AIRBORNE_M: f32 = 0.1;
 /// again from the new estimate, as after a position reset.
 pub const HEIGHT_JUMP_M: f32 = 0.1;
 
+/// A sweep waits (its reference stops where it is) while the gyro has read a held, clipped value within this
+/// time (s): a gyro that saturates below the rates a manoeuvre needs cannot damp it (the estimator counts the
+/// clipped samples, `gyro_clipped`); hovering needs far smaller rates.
+pub const GYRO_CLIP_PAUSE_S: f32 = 1.0;
+
 /// An operator command (from the ground station over the radio link).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
@@ -308,6 +313,11 @@ pub struct ControlCore {
     last_flow_us: Option<u64>,
     /// How far a blind hold or landing has moved away from the wall since it went blind (m).
     retreat_m: f32,
+    /// The estimator's clipped-gyro count last seen, and when it last grew.
+    gyro_clips_seen: u32,
+    last_clip_us: Option<u64>,
+    /// A sweep waiting for the gyro to read within its range again.
+    clip_paused: bool,
     last_link_us: Option<u64>,
     airborne_since_us: u64,
     hold_since_us: u64,
@@ -366,6 +376,9 @@ impl ControlCore {
             last_fix_us: None,
             last_flow_us: None,
             retreat_m: 0.0,
+            gyro_clips_seen: 0,
+            last_clip_us: None,
+            clip_paused: false,
             last_link_us: None,
             airborne_since_us: 0,
             hold_since_us: 0,
@@ -593,6 +606,13 @@ impl ControlCore {
         }
         let link_ok =
             self.last_link_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.link_land_after_s);
+        let clips = self.estimator.counters().gyro_clipped;
+        if clips != self.gyro_clips_seen {
+            self.gyro_clips_seen = clips;
+            self.last_clip_us = Some(now);
+        }
+        let gyro_clipping =
+            self.last_clip_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= GYRO_CLIP_PAUSE_S);
         let est = self.estimator.estimate(now);
         // A position reset or a jump (vision back after a long dead-reckoning) moves the estimate at once: the references
         // start again from the new estimate, at their bounded rates (a landing descends from the new height).
@@ -794,7 +814,18 @@ impl ControlCore {
                     }
                 }
             }
+            FlightMode::Tracking if gyro_clipping => {
+                // The sweep waits where its reference is; it goes on from where the vehicle is once the gyro
+                // reads within its range for GYRO_CLIP_PAUSE_S.
+                self.clip_paused = true;
+            }
             FlightMode::Tracking => {
+                if self.clip_paused
+                    && let Some(sw) = self.sweep.as_mut()
+                {
+                    self.clip_paused = false;
+                    sw.resume(est.position_m.x, now);
+                }
                 if let Some(sw) = self.sweep.as_mut() {
                     let (x, vx, ax) = sw.update(now);
                     sp.position_m = Vec3::new(x, traj.y_d_m, traj.z_d_m);
