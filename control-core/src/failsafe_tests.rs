@@ -323,12 +323,12 @@ fn a_hold_entered_at_speed_keeps_its_reference_on_the_estimate_and_never_pushes_
 }
 
 #[test]
-fn a_sweep_waits_while_the_gyro_clips_and_goes_on_from_where_the_vehicle_is() {
+fn a_sweep_slows_to_a_stop_while_the_gyro_clips_and_speeds_up_again() {
     let mut h = Harness::hovering();
     h.command(Command::StartTracking);
-    h.run(1.0);
-    let moving = h.step(None).setpoint;
-    assert!(moving.velocity_m_s.x.abs() > 0.1, "sweeping: {:?}", moving.velocity_m_s);
+    h.run(2.0);
+    let cruise = h.step(None).setpoint.velocity_m_s.x;
+    assert!(cruise.abs() > 0.1, "sweeping at {cruise} m/s");
     // The gyro holds 0.5 rad/s on x for 20 ms (alternating signs, so that the attitude barely turns).
     h.clip_value = 0.5;
     h.clip_samples = 10;
@@ -337,18 +337,27 @@ fn a_sweep_waits_while_the_gyro_clips_and_goes_on_from_where_the_vehicle_is() {
     h.clip_samples = 10;
     h.run(0.01);
     assert!(h.core.estimator().counters().gyro_clipped >= 18);
-    // The reference stops where it is while the last clipped reading is within GYRO_CLIP_PAUSE_S.
-    let x0 = h.step(None).setpoint.position_m.x;
-    for _ in 0..((GYRO_CLIP_PAUSE_S - 0.05) * 500.0) as usize {
-        let sp = h.step(None).setpoint;
+    // The reference's speed falls at most at the pace's rate (no step) and reaches 0 while the clipped
+    // readings are recent; then it comes back.
+    let mut prev = h.step(None).setpoint.velocity_m_s.x;
+    let max_change = 0.3 * 0.002 / SWEEP_PACE_CHANGE_S * 1.5 + 1e-4;
+    let mut stopped_at = None;
+    for k in 0..((GYRO_CLIP_PAUSE_S + SWEEP_PACE_CHANGE_S + 0.5) * 500.0) as usize {
+        let v = h.step(None).setpoint.velocity_m_s.x;
         assert_eq!(h.mode(), FlightMode::Tracking);
-        assert_eq!((sp.position_m.x, sp.velocity_m_s.x), (x0, 0.0));
+        if stopped_at.is_none() {
+            assert!((v - prev).abs() <= max_change, "the reference's speed stepped from {prev} to {v}");
+        }
+        if v == 0.0 && stopped_at.is_none() {
+            stopped_at = Some(k);
+        }
+        prev = v;
     }
-    // Then the pass goes on from where the vehicle is.
-    h.run(0.2);
-    let sp = h.step(None).setpoint;
-    assert!(sp.velocity_m_s.x.abs() > 0.01 && sp.velocity_m_s.x.signum() == moving.velocity_m_s.x.signum());
-    assert_eq!(h.step(None).status.passes_done, 0);
+    let k = stopped_at.expect("the sweep stopped");
+    assert!(k as f32 * 0.002 <= SWEEP_PACE_CHANGE_S + 0.01, "stopped after {} s", k as f32 * 0.002);
+    h.run(SWEEP_PACE_CHANGE_S);
+    let v = h.step(None).setpoint.velocity_m_s.x;
+    assert!((v - cruise).abs() < 0.01 || h.step(None).status.passes_done > 0, "back to {v} of {cruise}");
 }
 
 #[test]

@@ -89,10 +89,15 @@ pub const TAKEOFF_AIRBORNE_M: f32 = 0.1;
 /// again from the new estimate, as after a position reset.
 pub const HEIGHT_JUMP_M: f32 = 0.1;
 
-/// A sweep waits (its reference stops where it is) while the gyro has read a held, clipped value within this
-/// time (s): a gyro that saturates below the rates a manoeuvre needs cannot damp it (the estimator counts the
-/// clipped samples, `gyro_clipped`); hovering needs far smaller rates.
-pub const GYRO_CLIP_PAUSE_S: f32 = 1.0;
+/// A sweep slows to a stop while the gyro has read a held, clipped value within this time (s): a gyro that
+/// saturates below the rates a manoeuvre needs cannot damp it (the estimator counts the clipped samples,
+/// `gyro_clipped`); hovering needs far smaller rates.
+pub const GYRO_CLIP_PAUSE_S: f32 = 3.0;
+
+/// The time (s) a sweep's pace takes to go from full speed to a stop, or back: the sweep runs on its own clock,
+/// which slows down (and speeds up again) at this rate, so that stopping a pass never steps the reference's
+/// velocity (the extra acceleration is the pass's speed over this time).
+pub const SWEEP_PACE_CHANGE_S: f32 = 2.0;
 
 /// An operator command (from the ground station over the radio link).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -316,8 +321,9 @@ pub struct ControlCore {
     /// The estimator's clipped-gyro count last seen, and when it last grew.
     gyro_clips_seen: u32,
     last_clip_us: Option<u64>,
-    /// A sweep waiting for the gyro to read within its range again.
-    clip_paused: bool,
+    /// The sweep's clock (us) and the pace at which it runs (1 the mission's, 0 stopped).
+    sweep_clock_us: u64,
+    sweep_pace: f32,
     last_link_us: Option<u64>,
     airborne_since_us: u64,
     hold_since_us: u64,
@@ -378,7 +384,8 @@ impl ControlCore {
             retreat_m: 0.0,
             gyro_clips_seen: 0,
             last_clip_us: None,
-            clip_paused: false,
+            sweep_clock_us: 0,
+            sweep_pace: 1.0,
             last_link_us: None,
             airborne_since_us: 0,
             hold_since_us: 0,
@@ -497,8 +504,14 @@ impl ControlCore {
             }
             (Command::StartTracking, Hover) => {
                 self.mode = Tracking;
-                self.sweep =
-                    Some(Sweep::new(t.x_range_m, t.speed_m_s, t.accel_m_s2, t.sweeps, self.hold.x, now));
+                self.sweep = Some(Sweep::new(
+                    t.x_range_m,
+                    t.speed_m_s,
+                    t.accel_m_s2,
+                    t.sweeps,
+                    self.hold.x,
+                    self.sweep_clock_us,
+                ));
                 Ok(())
             }
             (Command::StopTracking, Tracking) => {
@@ -613,6 +626,12 @@ impl ControlCore {
         }
         let gyro_clipping =
             self.last_clip_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= GYRO_CLIP_PAUSE_S);
+        // The sweep's clock: its pace falls to 0 while the gyro clips, and returns to 1, each over
+        // SWEEP_PACE_CHANGE_S.
+        let step = dt / SWEEP_PACE_CHANGE_S;
+        self.sweep_pace =
+            if gyro_clipping { self.sweep_pace - step } else { self.sweep_pace + step }.clamp(0.0, 1.0);
+        self.sweep_clock_us += libm::roundf(dt * 1e6 * self.sweep_pace) as u64;
         let est = self.estimator.estimate(now);
         // A position reset or a jump (vision back after a long dead-reckoning) moves the estimate at once: the references
         // start again from the new estimate, at their bounded rates (a landing descends from the new height).
@@ -701,7 +720,7 @@ impl ControlCore {
                         self.settled_since_us = None;
                     } else if let Some(mut sw) = self.paused_sweep.take() {
                         // A sweep goes on with its pass from where the vehicle is.
-                        sw.resume(est.position_m.x, now);
+                        sw.resume(est.position_m.x, self.sweep_clock_us);
                         self.sweep = Some(sw);
                         self.mode = FlightMode::Tracking;
                     } else {
@@ -814,23 +833,15 @@ impl ControlCore {
                     }
                 }
             }
-            FlightMode::Tracking if gyro_clipping => {
-                // The sweep waits where its reference is; it goes on from where the vehicle is once the gyro
-                // reads within its range for GYRO_CLIP_PAUSE_S.
-                self.clip_paused = true;
-            }
             FlightMode::Tracking => {
-                if self.clip_paused
-                    && let Some(sw) = self.sweep.as_mut()
-                {
-                    self.clip_paused = false;
-                    sw.resume(est.position_m.x, now);
-                }
                 if let Some(sw) = self.sweep.as_mut() {
-                    let (x, vx, ax) = sw.update(now);
+                    let (x, vx, ax) = sw.update(self.sweep_clock_us);
+                    // On the sweep's clock, running at `pace`: d/dt = pace d/dtau (the pace's own change adds
+                    // vx pace', at most the pass's speed over SWEEP_PACE_CHANGE_S, left out).
+                    let pace = self.sweep_pace;
                     sp.position_m = Vec3::new(x, traj.y_d_m, traj.z_d_m);
-                    sp.velocity_m_s.x = vx;
-                    sp.accel_m_s2.x = ax;
+                    sp.velocity_m_s.x = vx * pace;
+                    sp.accel_m_s2.x = ax * pace * pace;
                     self.hold = sp.position_m;
                     if sw.finished() {
                         self.mode = FlightMode::Hover;

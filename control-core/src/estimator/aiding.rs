@@ -255,7 +255,17 @@ impl Estimator {
             let vb = r.tmul_vec(self.v);
             let sk = Mat3::skew(vb);
             h[ITH..ITH + 3].copy_from_slice(&sk.m[axis]);
-            if !self.update(&h, m.velocity_m_s[axis] - pred, m.std_m_s * m.std_m_s, true) {
+            // The vertical velocity enters a body axis only through the tilt (sin of a few degrees); it is
+            // considered, not corrected: with the vertical velocity far less certain than the horizontal (after
+            // a reset), the flow's errors of scale and tilt would be read as a vertical speed magnified tens of
+            // times (a 6 cm/s flow innovation turned into 1.4 m/s of climb, and a dive into the floor).
+            if !self.update_considering(
+                &h,
+                m.velocity_m_s[axis] - pred,
+                m.std_m_s * m.std_m_s,
+                true,
+                IV + 2..IV + 3,
+            ) {
                 accepted = false;
             }
         }
