@@ -81,7 +81,7 @@ fn a_body_velocity_updates_as_its_measurement_model_states() {
     assert_eq!(e.fuse_body_velocity(&m, 1_040_000), FuseOutcome::Accepted);
     assert_eq!(e.counters().flow_accepted, 1);
     // By hand: for each body axis a, the row v -> (R^T v)_a at the current attitude, theta -> [R^T v]x row a;
-    // the innovation against the past state's body velocity.
+    // the innovation against the past state's body velocity; the vertical velocity considered.
     let mut p: [[f64; N]; N] = core::array::from_fn(|i| core::array::from_fn(|j| e0.cov[i][j] as f64));
     let rp = past.q.to_mat3();
     let mut total = [0.0f64; N];
@@ -99,7 +99,9 @@ fn a_body_velocity_updates_as_its_measurement_model_states() {
             h[ITH + k] = sk.m[axis][k] as f64;
         }
         let pred: f64 = (0..3).map(|k| rp.m[k][axis] as f64 * past.v[k] as f64).sum();
-        let dx = kalman_by_hand(&mut p, &h, m.velocity_m_s[axis] as f64 - pred, 0.05 * 0.05);
+        // The vertical velocity considered, not corrected (it enters a body axis through the tilt alone).
+        let dx =
+            kalman_considering(&mut p, &h, m.velocity_m_s[axis] as f64 - pred, 0.05 * 0.05, IV + 2..IV + 3);
         for i in 0..N {
             total[i] += dx[i];
         }
