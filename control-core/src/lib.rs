@@ -241,6 +241,8 @@ pub struct ControlInputs<'a> {
     pub imu: &'a [ImuSample],
     /// Magnetometer reading (body frame), when a new one arrived.
     pub mag: Option<Vec3>,
+    /// Barometric pressure altitude (m, any offset), when a new reading arrived.
+    pub baro_m: Option<f32>,
     /// Vision fix solved this step, when a frame arrived.
     pub fix: Option<PositionFix>,
     /// Optical-flow velocity, when one arrived.
@@ -316,6 +318,8 @@ pub struct ControlCore {
     last_fix_us: Option<u64>,
     /// When a flow velocity was last accepted.
     last_flow_us: Option<u64>,
+    /// When the last barometer reading arrived.
+    last_baro_us: Option<u64>,
     /// How far a blind hold or landing has moved away from the wall since it went blind (m).
     retreat_m: f32,
     /// The estimator's clipped-gyro count last seen, and when it last grew.
@@ -381,6 +385,7 @@ impl ControlCore {
             first_imu_us: None,
             last_fix_us: None,
             last_flow_us: None,
+            last_baro_us: None,
             retreat_m: 0.0,
             gyro_clips_seen: 0,
             last_clip_us: None,
@@ -611,6 +616,16 @@ impl ControlCore {
             && self.estimator.fuse_body_velocity(&f, now) == FuseOutcome::Accepted
         {
             self.last_flow_us = Some(now);
+        }
+        // The barometer: its offset learned while vision (or the pad) gives the height, a height measurement
+        // otherwise.
+        if let Some(b) = inp.baro_m {
+            let since = self.last_baro_us.map_or(0.0, |t| now.saturating_sub(t) as f32 * 1e-6);
+            self.last_baro_us = Some(now);
+            let fresh_fix = self
+                .last_fix_us
+                .is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.vision_hold_after_s);
+            self.estimator.fuse_baro(b, since, fresh_fix || pad);
         }
         // Nothing sinks through the floor (the pad's height is where the centre of mass rests on it).
         let at_floor = self.estimator.constrain_above_floor(traj.ground_height_m);

@@ -428,6 +428,12 @@ params_struct! {
         max_fix_age_s: f32 = 0.25, { > 0.0, <= 0.256 } "s";
         /// Magnetic field in the world frame (any unit; only its horizontal direction is used).
         mag_field_world: [f32; 3] = [0.2, -0.05, -0.4], { >= -1e6, <= 1e6 } "";
+        /// Barometer: standard deviation of one pressure-altitude reading (m), its noise and the short-term
+        /// pressure disturbances of the rotors' wash together.
+        baro_noise_m: f32 = 0.1, { > 0.0, <= 100.0 } "m";
+        /// Barometer: time constant (s) over which its offset (the day's pressure, its slow drift) is learned
+        /// against a height that vision or the pad gives.
+        baro_offset_tau_s: f32 = 5.0, { > 0.0, <= 3600.0 } "s";
         /// At rest: standard deviation of the zero-velocity measurement, per block of samples (m/s).
         still_velocity_sigma_m_s: f32 = 0.02, { > 0.0, <= 10.0 } "m/s";
         /// At rest on the pad: standard deviation of the pad-height measurement, per block (m).

@@ -37,6 +37,7 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
                     time_us: s.time_us,
                     imu: &s.imu,
                     mag: s.mag,
+                    baro_m: s.baro_m,
                     uplink: &uplink,
                     landed: s.landed,
                 });

@@ -103,8 +103,14 @@ fn run(board: &mut board::Board, stack: &mut FlightStack, cfg: &FlightConfig) ->
             }
         }
         let t0 = board.cycles();
-        let out =
-            stack.step(&StepInput { time_us, imu: &imu, mag: mag.take(), uplink: &uplink, landed: None });
+        let out = stack.step(&StepInput {
+            time_us,
+            imu: &imu,
+            mag: mag.take(),
+            baro_m: None,
+            uplink: &uplink,
+            landed: None,
+        });
         let step_cost = board.cycles_since(t0);
         stats.record_step(step_cost);
         imu.clear();

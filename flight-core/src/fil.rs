@@ -28,6 +28,8 @@ pub struct SensorStep {
     pub mag: Option<Vec3>,
     /// An external land detector's verdict (the recorded vehicle's, in imported logs); `None` in flight.
     pub landed: Option<bool>,
+    /// A new barometric pressure altitude (m, any offset), if any.
+    pub baro_m: Option<f32>,
 }
 
 /// Simulator to flight computer.
@@ -79,7 +81,14 @@ mod tests {
     fn the_largest_messages_fit_one_frame_and_round_trip() {
         let mut stack = FlightStack::new(FlightConfig::paper()).unwrap();
         let imu = ImuSample { time_us: 2000, gyro_rad_s: [0.01, -0.02, 0.03], accel_m_s2: [0.1, -0.2, 9.8] };
-        let out = stack.step(&StepInput { time_us: 2000, imu: &[imu], mag: None, uplink: &[], landed: None });
+        let out = stack.step(&StepInput {
+            time_us: 2000,
+            imu: &[imu],
+            mag: None,
+            baro_m: None,
+            uplink: &[],
+            landed: None,
+        });
         let mut report = out.report();
         // Fill the optional parts, as the largest step reply would have them.
         report.flow = Some(crate::flow::FlowOutcome::NoGyro);
@@ -103,6 +112,7 @@ mod tests {
             imu: heapless::Vec::from_slice(&[imu; MAX_IMU_PER_STEP]).unwrap(),
             mag: Some(Vec3::new(0.2, -0.05, -0.4)),
             landed: None,
+            baro_m: Some(1234.5),
         });
         let mut buf = [0u8; MAX_FRAME];
         let f = encode(&step, &mut buf).unwrap();

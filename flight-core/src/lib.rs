@@ -97,6 +97,8 @@ pub struct StepInput<'a> {
     pub imu: &'a [ImuSample],
     /// A new magnetometer reading (body frame), if any.
     pub mag: Option<Vec3>,
+    /// A new barometric pressure altitude (m, any offset), if any.
+    pub baro_m: Option<f32>,
     /// Messages received from the ground station since the previous step, in arrival order.
     pub uplink: &'a [Uplink],
     /// An external land detector's verdict (the recorded vehicle's, in imported logs); `None` in flight.
@@ -417,6 +419,7 @@ impl FlightStack {
             time_us: inp.time_us,
             imu: inp.imu,
             mag: inp.mag,
+            baro_m: inp.baro_m,
             fix,
             flow,
             command,
@@ -459,6 +462,7 @@ mod tests {
                 time_us: t,
                 imu: &imu(t),
                 mag: None,
+                baro_m: None,
                 uplink: &[Uplink::Heartbeat],
                 landed: None,
             });
@@ -468,6 +472,7 @@ mod tests {
             time_us: t,
             imu: &imu(t),
             mag: None,
+            baro_m: None,
             uplink: &[Uplink::ParamSet { id: ParamId::TrajectorySpeed, value: 0.3 }],
             landed: None,
         });
@@ -478,6 +483,7 @@ mod tests {
             time_us: t,
             imu: &imu(t),
             mag: None,
+            baro_m: None,
             uplink: &[Uplink::Command(Command::Arm)],
             landed: None,
         });
@@ -489,6 +495,7 @@ mod tests {
             time_us: t,
             imu: &imu(t),
             mag: None,
+            baro_m: None,
             uplink: &[Uplink::Vision(m)],
             landed: None,
         });
@@ -524,7 +531,14 @@ mod tests {
         let mut t = 0;
         for _ in 0..100 {
             t += 2000;
-            s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[], landed: None });
+            s.step(&StepInput {
+                time_us: t,
+                imu: &imu(t),
+                mag: None,
+                baro_m: None,
+                uplink: &[],
+                landed: None,
+            });
         }
         // The step queues the frame; nothing is solved within it.
         t += 2000;
@@ -533,6 +547,7 @@ mod tests {
             time_us: t,
             imu: &imu(t),
             mag: None,
+            baro_m: None,
             uplink: &[Uplink::Vision(m)],
             landed: None,
         });
@@ -543,7 +558,14 @@ mod tests {
         assert_eq!(s.pending_solves(), 0);
         let before = s.control().estimator().counters();
         t += 2000;
-        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[], landed: None });
+        let out = s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            baro_m: None,
+            uplink: &[],
+            landed: None,
+        });
         let Some(FrameOutcome::Solved(p)) = out.frame else { panic!("solved: {:?}", out.frame) };
         let want = VisionConfig::default().target.center() - Vec3::new(0.0, -1.2, 0.0);
         assert!((p.vehicle_position_m - want).norm() < 1e-3, "{:?}", p.vehicle_position_m);
@@ -554,11 +576,25 @@ mod tests {
         t += 2000;
         let ms = [frame_seen(t - 30_000, 2), frame_seen(t - 28_000, 3), frame_seen(t - 26_000, 4)];
         let uplink = ms.map(Uplink::Vision);
-        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &uplink, landed: None });
+        let out = s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            baro_m: None,
+            uplink: &uplink,
+            landed: None,
+        });
         assert_eq!((out.vision.frames, out.vision.dropped), (4, 1));
         assert_eq!(s.solve_pending(), 2);
         t += 2000;
-        let out = s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[], landed: None });
+        let out = s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            baro_m: None,
+            uplink: &[],
+            landed: None,
+        });
         assert_eq!(out.vision.solved, 3);
     }
 
@@ -568,7 +604,14 @@ mod tests {
         let mut t = 0;
         for _ in 0..100 {
             t += 2000;
-            s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, uplink: &[], landed: None });
+            s.step(&StepInput {
+                time_us: t,
+                imu: &imu(t),
+                mag: None,
+                baro_m: None,
+                uplink: &[],
+                landed: None,
+            });
         }
         let m = frame_seen(t - 30_000, 1);
         t += 2000;
@@ -576,6 +619,7 @@ mod tests {
             time_us: t,
             imu: &imu(t),
             mag: None,
+            baro_m: None,
             uplink: &[Uplink::Vision(m)],
             landed: None,
         });
@@ -590,6 +634,7 @@ mod tests {
             time_us: t,
             imu: &imu(t),
             mag: None,
+            baro_m: None,
             uplink: &[Uplink::Vision(again)],
             landed: None,
         });
@@ -603,6 +648,7 @@ mod tests {
             time_us: t,
             imu: &imu(t),
             mag: None,
+            baro_m: None,
             uplink: &[Uplink::Vision(fresh)],
             landed: None,
         });

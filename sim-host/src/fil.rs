@@ -309,6 +309,7 @@ impl QemuFc {
             time_us: input.time_us,
             imu,
             mag: input.mag,
+            baro_m: input.baro_m,
             landed: input.landed,
         })]) {
             let frame = encode(&msg, &mut buf).map_err(|e| anyhow::anyhow!("cannot frame {msg:?}: {e:?}"))?;

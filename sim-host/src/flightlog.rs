@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 /// The file's first bytes.
 pub const LOG_MAGIC: &[u8; 6] = b"WLQLOG";
 /// Version of the log layout (header and record kinds).
-pub const LOG_FORMAT_VERSION: u16 = 4;
+pub const LOG_FORMAT_VERSION: u16 = 5;
 /// The longest record frame a reader accepts (a raw 4K RGB frame fits): longer ones are damage.
 pub const MAX_LOG_FRAME: usize = 64 << 20;
 /// File name `sim-host fly` writes in its output directory.
@@ -477,6 +477,12 @@ impl<R: BufRead> LogReader<R> {
                  this reader reads version {LOG_FORMAT_VERSION} (replay it with the sim-host that wrote it, or fly it again)"
             );
         }
+        if version == 4 {
+            bail!(
+                "log format version 4 at byte 6: written before a step's record carried the barometer; this \
+                 reader reads version {LOG_FORMAT_VERSION} (replay it with the sim-host that wrote it, or fly it again)"
+            );
+        }
         if version != LOG_FORMAT_VERSION {
             bail!("log format version {version} at byte 6; this reader reads version {LOG_FORMAT_VERSION}");
         }
@@ -868,6 +874,10 @@ mod tests {
         v3[6] = 3;
         let e = format!("{:#}", parse_log(&v3).unwrap_err());
         assert!(e.contains("version 3") && e.contains("end record"), "{e}");
+        let mut v4 = bytes.clone();
+        v4[6] = 4;
+        let e = format!("{:#}", parse_log(&v4).unwrap_err());
+        assert!(e.contains("version 4") && e.contains("barometer"), "{e}");
     }
 
     fn sample_header() -> LogHeader {
@@ -929,16 +939,16 @@ mod tests {
     #[test]
     fn golden_bytes_of_the_header_and_the_schema_hash() {
         let b = header_bytes(&sample_header()).unwrap();
-        // "WLQLOG", version 4 (u16 LE), JSON length (u32 LE), the JSON, its CRC-32 (u32 LE).
-        assert_eq!(&b[..8], b"WLQLOG\x04\x00");
+        // "WLQLOG", version 5 (u16 LE), JSON length (u32 LE), the JSON, its CRC-32 (u32 LE).
+        assert_eq!(&b[..8], b"WLQLOG\x05\x00");
         let len = u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize;
         assert_eq!(b.len(), 16 + len);
         let json = &b[12..12 + len];
-        assert!(std::str::from_utf8(json).unwrap().starts_with("{\"format_version\":4,\"schema_hash\":\""));
+        assert!(std::str::from_utf8(json).unwrap().starts_with("{\"format_version\":5,\"schema_hash\":\""));
         assert_eq!(b[12 + len..], crc32fast::hash(json).to_le_bytes());
         assert_eq!(crc32fast::hash(b"123456789"), 0xCBF4_3926, "CRC-32 (IEEE) check value");
         // The schema fingerprint of this version's records: any change to a record's fields changes it.
-        assert_eq!(schema_hash(), "e50a78020e1f3339");
+        assert_eq!(schema_hash(), "9a19457652cbaab5");
     }
 
     #[test]

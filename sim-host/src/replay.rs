@@ -243,6 +243,7 @@ pub fn replay_stream(
                     time_us: step.time_us,
                     imu: &step.imu,
                     mag: step.mag,
+                    baro_m: step.baro_m,
                     uplink: &uplink,
                     landed: step.landed,
                 });

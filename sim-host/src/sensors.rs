@@ -69,8 +69,14 @@ impl ImuFaults {
     }
 }
 
-/// The IMU and magnetometer of one run.
+/// The IMU, magnetometer and barometer of one run.
 pub struct ImuModel {
+    baro_rng: SimRng,
+    baro_noise: f64,
+    baro_offset: f64,
+    baro_walk: f64,
+    /// The barometer's drift so far (m).
+    baro_drift: f64,
     gyro_bias: [f64; 3],
     accel_bias: [f64; 3],
     gyro_sigma: f64,
@@ -109,6 +115,11 @@ impl ImuModel {
         let r = rot_zyx(misalignment_deg);
         let sensor_from_body = [0, 1, 2].map(|i| [0, 1, 2].map(|j| r[j][i]));
         Self {
+            baro_rng: SimRng::stream(seed, "barometer"),
+            baro_noise: cfg.baro_noise_m,
+            baro_offset: cfg.baro_offset_m,
+            baro_walk: cfg.baro_drift_m_per_sqrt_s,
+            baro_drift: 0.0,
             gyro_bias,
             accel_bias,
             gyro_sigma: cfg.gyro_noise_density * cfg.rate_hz.sqrt(),
@@ -192,6 +203,15 @@ impl ImuModel {
             gyro_rad_s: gyro.map(|v| v.clamp(-g_range, g_range) as f32),
             accel_m_s2: accel.map(|v| v.clamp(-self.accel_range, self.accel_range) as f32),
         }
+    }
+
+    /// A barometer reading `dt_s` after the previous one: the pressure altitude of the vehicle's height, the
+    /// floor's pressure altitude (`imu.baro_offset_m`) added, a random-walk drift and white noise (the rotors'
+    /// wash near the floor is not modelled).
+    pub fn baro(&mut self, q: &Quadrotor, dt_s: f64) -> f32 {
+        self.baro_drift += self.baro_walk * dt_s.max(0.0).sqrt() * self.baro_rng.normal();
+        let noise = self.baro_noise * self.baro_rng.normal();
+        (q.state.p[2] + self.baro_offset + self.baro_drift + noise) as f32
     }
 
     /// One magnetometer reading (body frame), with a disturbance of the field when one is active.

@@ -280,6 +280,9 @@ pub struct Sil {
     next_heartbeat_us: u64,
     pending_imu: Vec<ImuSample>,
     pending_mag: Option<Vec3>,
+    pending_baro: Option<f32>,
+    /// Physics steps between barometer readings (`None`: the vehicle has no barometer).
+    baro_every: Option<u64>,
     motor_cmd: [f32; 4],
     last_out: Option<StepReport>,
     records: Vec<Record>,
@@ -453,6 +456,8 @@ impl Sil {
             next_heartbeat_us: 0,
             pending_imu: Vec::with_capacity(8),
             pending_mag: None,
+            pending_baro: None,
+            baro_every: (scenario.imu.baro_rate_hz > 0.0).then(|| every(scenario.imu.baro_rate_hz).max(1)),
             motor_cmd: [0.0; 4],
             last_out: None,
             records: Vec::new(),
@@ -827,10 +832,12 @@ impl Sil {
             delivered.push(msg);
         }
         let step_mag = self.pending_mag.take();
+        let step_baro = self.pending_baro.take();
         let input = StepInput {
             time_us: self.t_us,
             imu: &self.pending_imu,
             mag: step_mag,
+            baro_m: step_baro,
             uplink: &delivered,
             landed: None,
         };
@@ -891,6 +898,7 @@ impl Sil {
                 imu: heapless::Vec::from_slice(&self.pending_imu)
                     .expect("scenario validation bounds the IMU samples per control step"),
                 mag: step_mag,
+                baro_m: step_baro,
                 landed: None,
             };
             let mut records: Vec<LogRecord> = delivered.iter().map(|m| LogRecord::Link(*m)).collect();
@@ -1046,6 +1054,12 @@ impl Sil {
         }
         if self.step_count.is_multiple_of(self.mag_every) {
             self.pending_mag = Some(self.imu.mag(&self.quad, &faults));
+        }
+        if let Some(n) = self.baro_every
+            && self.step_count.is_multiple_of(n)
+        {
+            let dt = (n * self.dt_us) as f64 * 1e-6;
+            self.pending_baro = Some(self.imu.baro(&self.quad, dt));
         }
         if self.t_us >= self.next_frame_us {
             self.capture_frame();

@@ -278,6 +278,41 @@ impl Estimator {
         }
     }
 
+    /// A barometer's pressure altitude `baro_m` (any offset), `dt_s` after the previous reading.
+    ///
+    /// While `height_known` (vision fixes fresh, or at rest on the pad), the reading teaches the barometer's
+    /// offset (its reading less the height estimate, low-passed over `baro_offset_tau_s`: the day's pressure
+    /// and its slow drift); nothing else. Otherwise, once an offset is known, the reading less the offset is a
+    /// height measurement of standard deviation `baro_noise_m`, gated: it bounds the height and the vertical
+    /// velocity that the accelerometer alone lets drift by decimetres in seconds (every flight stack fuses
+    /// one; PX4's EKF2 the same way, with the offset as a state). Returns `Accepted` when fused.
+    pub fn fuse_baro(&mut self, baro_m: f32, dt_s: f32, height_known: bool) -> FuseOutcome {
+        if !baro_m.is_finite() {
+            self.counters.baro_rejected += 1;
+            return FuseOutcome::Invalid;
+        }
+        let seen = baro_m - self.p.z;
+        if height_known {
+            let a = (dt_s / self.params.baro_offset_tau_s).clamp(0.0, 1.0);
+            self.baro_offset = Some(match self.baro_offset {
+                Some(o) => o + (seen - o) * a,
+                None => seen,
+            });
+            return FuseOutcome::Initialised;
+        }
+        let Some(offset) = self.baro_offset else { return FuseOutcome::Stale };
+        let sigma = self.params.baro_noise_m;
+        let mut h = [0.0; N];
+        h[IP + 2] = 1.0;
+        if self.update(&h, baro_m - offset - self.p.z, sigma * sigma, true) {
+            self.counters.baro_accepted += 1;
+            FuseOutcome::Accepted
+        } else {
+            self.counters.baro_rejected += 1;
+            FuseOutcome::Rejected
+        }
+    }
+
     /// Fuses the magnetometer's heading (tilt-compensated with the current attitude).
     pub fn fuse_mag(&mut self, field_body: Vec3) -> FuseOutcome {
         if !field_body.is_finite() {

@@ -210,6 +210,10 @@ pub struct EstimatorCounters {
     pub gyro_clipped: u32,
     /// Steps in which the height estimate was held at the floor (it had sunk below).
     pub floor_constraints: u32,
+    /// Barometer readings fused as a height.
+    pub baro_accepted: u32,
+    /// Barometer readings outside the gate (or not finite).
+    pub baro_rejected: u32,
 }
 
 /// The error-state Kalman filter.
@@ -247,6 +251,8 @@ pub struct Estimator {
     /// The two samples before the newest, for the spike test.
     imu_window: [Option<ImuSample>; 2],
     mag_offset: Option<f32>,
+    /// The barometer's offset: its reading less the height (m), once learned.
+    baro_offset: Option<f32>,
 }
 
 fn zero_cov() -> [[f32; N]; N] {
@@ -314,6 +320,7 @@ impl Estimator {
             vision_position_rejections: 0,
             imu_window: [None; 2],
             mag_offset: None,
+            baro_offset: None,
         }
     }
 

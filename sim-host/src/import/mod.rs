@@ -291,7 +291,8 @@ pub fn write_import_on(
             landed = data.landed[next_land].1;
             next_land += 1;
         }
-        let mut step = SensorStep { time_us: rebase(t), imu: heapless::Vec::new(), mag: None, landed };
+        let mut step =
+            SensorStep { time_us: rebase(t), imu: heapless::Vec::new(), mag: None, baro_m: None, landed };
         while next_imu < imu.len() && imu[next_imu].time_us <= t {
             let mut s = imu[next_imu];
             s.time_us = rebase(s.time_us);

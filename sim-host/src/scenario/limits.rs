@@ -166,6 +166,12 @@ limits! {
     IMU_GYRO_RANGE = "imu.gyro_range_rad_s" closed [1, 100] "rad/s";
     /// 0 (off), or from 5 Hz to half the IMU's rate.
     IMU_DLPF = "imu.dlpf_hz" closed [0, 50000] "Hz";
+    /// 0 (none), or at most the IMU's rate.
+    IMU_BARO_RATE = "imu.baro_rate_hz" closed [0, 1000] "Hz";
+    IMU_BARO_NOISE = "imu.baro_noise_m" closed [0, 10] "m";
+    /// From the Dead Sea to the highest airfields.
+    IMU_BARO_OFFSET = "imu.baro_offset_m" closed [-500, 9000] "m";
+    IMU_BARO_DRIFT = "imu.baro_drift_m_per_sqrt_s" closed [0, 1] "m/sqrt(s)";
 
     LINK_LATENCY = "link.latency_s" closed [0, 0.5] "s";
     LINK_HEARTBEAT = "link.heartbeat_hz" above [0, 1000] "Hz";

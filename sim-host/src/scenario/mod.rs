@@ -292,7 +292,7 @@ impl Default for ModelConfig {
     }
 }
 
-/// The IMU and magnetometer.
+/// The IMU, magnetometer and barometer.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct ImuConfig {
@@ -324,6 +324,15 @@ pub struct ImuConfig {
     /// The sensor's digital low-pass filter, first order (Hz; 0 turns it off): the anti-alias filter of a MEMS
     /// part such as the MPU-6000's DLPF (98 Hz in its setting 2).
     pub dlpf_hz: f64,
+    /// Barometer rate (Hz; 0: the vehicle has none). Every STM32F405 flight controller carries one (BMP280,
+    /// DPS310, MS5611).
+    pub baro_rate_hz: f64,
+    /// Barometer noise per reading (m, 1 sigma), the rotors' pressure disturbances included.
+    pub baro_noise_m: f64,
+    /// The floor's pressure altitude (m): the day's pressure, unknown to the flight code.
+    pub baro_offset_m: f64,
+    /// The barometer's drift, a random walk (m per sqrt(s)).
+    pub baro_drift_m_per_sqrt_s: f64,
 }
 
 impl Default for ImuConfig {
@@ -342,6 +351,10 @@ impl Default for ImuConfig {
             accel_range_m_s2: 16.0 * 9.80665,
             gyro_range_rad_s: 2000f64.to_radians(),
             dlpf_hz: 98.0,
+            baro_rate_hz: 50.0,
+            baro_noise_m: 0.1,
+            baro_offset_m: 120.0,
+            baro_drift_m_per_sqrt_s: 0.005,
         }
     }
 }

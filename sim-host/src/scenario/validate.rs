@@ -98,6 +98,10 @@ impl Scenario {
             r(IMU_VIBRATION_GYRO, &[i.vibration_gyro_rad_s]),
             r(IMU_ACCEL_RANGE, &[i.accel_range_m_s2]),
             r(IMU_GYRO_RANGE, &[i.gyro_range_rad_s]),
+            r(IMU_BARO_RATE, &[i.baro_rate_hz]),
+            r(IMU_BARO_NOISE, &[i.baro_noise_m]),
+            r(IMU_BARO_OFFSET, &[i.baro_offset_m]),
+            r(IMU_BARO_DRIFT, &[i.baro_drift_m_per_sqrt_s]),
             r(IMU_DLPF, &[i.dlpf_hz]),
             r(LINK_LATENCY, &[l.latency_s]),
             r(LINK_HEARTBEAT, &[l.heartbeat_hz]),
@@ -244,6 +248,7 @@ impl Scenario {
             "must be 0 (off) or lie in [5 Hz, half the IMU rate]",
         )?;
         check(i.mag_rate_hz <= i.rate_hz, "imu.mag_rate_hz", "must lie in (0, imu.rate_hz]")?;
+        check(i.baro_rate_hz <= i.rate_hz, "imu.baro_rate_hz", "must lie in [0, imu.rate_hz]")?;
         check(
             i.mag_field_world.iter().any(|v| *v != 0.0),
             "imu.mag_field_world",

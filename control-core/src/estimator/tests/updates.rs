@@ -346,3 +346,43 @@ fn the_tilt_alignment_reads_roll_and_pitch_from_one_force_and_keeps_the_yaw() {
     near.align_tilt(f * (1.0 + 1.9 / GRAVITY));
     assert_ne!(near.q, q0, "within 2 m/s^2");
 }
+
+#[test]
+fn the_barometer_learns_its_offset_while_the_height_is_known_and_measures_the_height_otherwise() {
+    let mut e = with_distinct_covariance();
+    e.p = Vec3::new(1.0, 1.3, 0.8);
+    // Before any offset is known, a reading is of no use.
+    let before = e.clone();
+    assert_eq!(e.fuse_baro(120.9, 0.02, false), FuseOutcome::Stale);
+    assert_eq!((e.p, e.v, e.cov), (before.p, before.v, before.cov));
+    // Known height: the first reading sets the offset, the next ones low-pass it over baro_offset_tau_s; the
+    // state is left alone.
+    assert_eq!(e.fuse_baro(120.9, 0.02, true), FuseOutcome::Initialised);
+    assert_eq!(e.baro_offset, Some(120.9 - 0.8));
+    let a = 0.02 / e.params.baro_offset_tau_s;
+    e.fuse_baro(121.0, 0.02, true);
+    let want = 120.1 + (121.0 - 0.8 - 120.1) * a;
+    assert!((e.baro_offset.unwrap() - want).abs() < 1e-4, "{:?} {want}", e.baro_offset);
+    assert_eq!((e.p, e.v, e.cov), (before.p, before.v, before.cov));
+    assert_eq!(e.counters().baro_accepted, 0);
+    // Unknown height: the reading less the offset is a height measurement, the Kalman update on z.
+    let offset = e.baro_offset.unwrap();
+    let e0 = e.clone();
+    let reading = offset + 0.8 + 0.05;
+    assert_eq!(e.fuse_baro(reading, 0.02, false), FuseOutcome::Accepted);
+    assert_eq!(e.counters().baro_accepted, 1);
+    let mut p: [[f64; N]; N] = core::array::from_fn(|i| core::array::from_fn(|j| e0.cov[i][j] as f64));
+    let mut h = [0.0f64; N];
+    h[IP + 2] = 1.0;
+    let sigma = e0.params.baro_noise_m as f64;
+    let want = kalman_by_hand(&mut p, &h, (reading - offset - 0.8) as f64, sigma * sigma);
+    assert_injected(&e0, &e, &want, 2e-3, 1e-4);
+    // The offset does not move while it measures.
+    assert_eq!(e.baro_offset, Some(offset));
+    // A reading far outside the gate, or not finite, is refused and counted; nothing changes.
+    let e1 = e.clone();
+    assert_eq!(e.fuse_baro(offset + 30.0, 0.02, false), FuseOutcome::Rejected);
+    assert_eq!(e.fuse_baro(f32::NAN, 0.02, false), FuseOutcome::Invalid);
+    assert_eq!(e.counters().baro_rejected, 2);
+    assert_eq!((e.p, e.v), (e1.p, e1.v));
+}
