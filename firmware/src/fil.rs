@@ -45,7 +45,7 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
                 uplink.clear();
                 stats.record_step(cost);
                 stats.mode = out.control.status.mode;
-                downlinks.after_step(&out.control, out.param_reply, s.time_us, cost, |m| {
+                downlinks.after_step(&out.control, out.param_reply, out.time_sync, s.time_us, cost, |m| {
                     link::send(board, &FcToFil::Link(m))
                 });
                 link::send(

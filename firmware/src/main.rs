@@ -118,7 +118,9 @@ fn run(board: &mut board::Board, stack: &mut FlightStack, cfg: &FlightConfig) ->
         if board.set_motors(cmd).is_err() {
             stats.motor_errors += 1;
         }
-        downlinks.after_step(&out.control, out.param_reply, time_us, step_cost, |m| link::send(board, &m));
+        downlinks.after_step(&out.control, out.param_reply, out.time_sync, time_us, step_cost, |m| {
+            link::send(board, &m)
+        });
         stats.mode = out.control.status.mode;
         stats.link = decoder.counters();
         // Background work: the pose solves of the frames this step queued, fused by the next step. It runs

@@ -170,6 +170,9 @@ pub struct StepOutput {
     pub flow_counters: FlowCounters,
     /// The answer to this step's parameter request (the last, when several arrived).
     pub param_reply: Option<control_core::ParamReply>,
+    /// The station time of this step's clock-synchronisation request, to echo with this step's time (the last,
+    /// when several arrived).
+    pub time_sync: Option<u64>,
     /// What the estimator has used and rejected since start.
     pub estimator: control_core::estimator::EstimatorCounters,
 }
@@ -189,6 +192,8 @@ pub struct StepReport {
     pub flow_counters: FlowCounters,
     /// The answer to this step's parameter request.
     pub param_reply: Option<control_core::ParamReply>,
+    /// The station time of this step's clock-synchronisation request, if any.
+    pub time_sync: Option<u64>,
     /// What the estimator has used and rejected since start.
     pub estimator: control_core::estimator::EstimatorCounters,
 }
@@ -202,6 +207,7 @@ impl StepOutput {
             flow: self.flow,
             flow_counters: self.flow_counters,
             param_reply: self.param_reply,
+            time_sync: self.time_sync,
             estimator: self.estimator,
         }
     }
@@ -338,6 +344,7 @@ impl FlightStack {
         let mut fix: Option<PositionFix> = None;
         let mut frame = None;
         let mut param_reply = None;
+        let mut time_sync = None;
         let mut flow: Option<BodyVelocity> = None;
         let mut flow_outcome = None;
         // The frames solved since the previous step (oldest first; the estimator takes one fix per step, the
@@ -368,6 +375,7 @@ impl FlightStack {
                 Uplink::Heartbeat => {}
                 Uplink::ParamSet { id, value } => param_reply = Some(self.control.set_param(*id, *value)),
                 Uplink::ParamGet(id) => param_reply = Some(self.control.get_param(*id)),
+                Uplink::TimeSync { station_time_us } => time_sync = Some(*station_time_us),
                 Uplink::Vision(m) => {
                     self.counters.frames += 1;
                     let repeated = m.observation.is_some() && m.observation == self.last_observation;
@@ -433,6 +441,7 @@ impl FlightStack {
             flow: flow_outcome,
             flow_counters: self.flow_counters,
             param_reply,
+            time_sync,
             estimator: self.control.estimator().counters(),
         }
     }
@@ -478,6 +487,22 @@ mod tests {
         });
         let r = out.param_reply.unwrap();
         assert_eq!((r.id, r.value, r.outcome), (ParamId::TrajectorySpeed, 0.3, ParamOutcome::Ok));
+        assert_eq!(out.time_sync, None);
+        // A clock-synchronisation request is answered with this step's time, the station's time echoed.
+        t += 2000;
+        let out = s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            baro_m: None,
+            uplink: &[Uplink::TimeSync { station_time_us: 77_000_123 }],
+            landed: None,
+        });
+        assert_eq!(out.time_sync, Some(77_000_123));
+        assert_eq!(out.report().time_sync, Some(77_000_123));
+        let mut sent = std::vec::Vec::new();
+        telemetry::DownlinkSchedule::new().after_step(&out.control, None, out.time_sync, t, 0, |d| sent.push(d));
+        assert_eq!(sent, [protocol::Downlink::TimeSync { station_time_us: 77_000_123, vehicle_time_us: t }]);
         t += 2000;
         let out = s.step(&StepInput {
             time_us: t,

@@ -22,12 +22,14 @@ impl DownlinkSchedule {
     }
 
     /// The messages of one step, in order: the acknowledgement of a command whose outcome changed, the reply
-    /// to this step's parameter request, and every [`TELEMETRY_EVERY`]th step telemetry with the step's
+    /// to this step's parameter request, the answer to its clock-synchronisation request (`time_sync`, the
+    /// station time to echo with `time_us`), and every [`TELEMETRY_EVERY`]th step telemetry with the step's
     /// measured cost (`step_cost`, 0 when not measured).
     pub fn after_step(
         &mut self,
         control: &ControlOutputs,
         param_reply: Option<ParamReply>,
+        time_sync: Option<u64>,
         time_us: u64,
         step_cost: u32,
         mut send: impl FnMut(Downlink),
@@ -42,6 +44,9 @@ impl DownlinkSchedule {
         }
         if let Some(r) = param_reply {
             send(Downlink::Param(r));
+        }
+        if let Some(station_time_us) = time_sync {
+            send(Downlink::TimeSync { station_time_us, vehicle_time_us: time_us });
         }
         if self.steps.is_multiple_of(TELEMETRY_EVERY) {
             send(Downlink::Telemetry(Telemetry {

@@ -343,6 +343,24 @@ mod tests {
         assert_eq!(f[..n], enc[..n]);
         // Heartbeat: version 1, variant 2, no zero byte: one COBS block of 5.
         assert_eq!(frame_of(&Uplink::Heartbeat)[..3], [0x05, 0x01, 0x02]);
+        // TimeSync: version 1, variant 6, station time 1_000_000 us as a varint (C0 84 3D); CRC-16 little
+        // endian; no zero byte: one COBS block.
+        let raw = [WIRE_VERSION, 6, 0xC0, 0x84, 0x3D];
+        assert_eq!(crc16(&raw), 0x8A91);
+        assert_eq!(
+            frame_of(&Uplink::TimeSync { station_time_us: 1_000_000 }),
+            [0x08, 0x01, 0x06, 0xC0, 0x84, 0x3D, 0x91, 0x8A, 0x00]
+        );
+        // Its answer: Downlink variant 3, both times as varints.
+        let mut buf = [0u8; 32];
+        let f =
+            encode(&crate::Downlink::TimeSync { station_time_us: 1_000_000, vehicle_time_us: 2 }, &mut buf)
+                .unwrap();
+        let mut raw = vec![WIRE_VERSION, 3, 0xC0, 0x84, 0x3D, 0x02];
+        raw.extend(crc16(&raw).to_le_bytes());
+        let mut enc = [0u8; 32];
+        let n = cobs_encode(&raw, &mut enc).unwrap();
+        assert_eq!(f[..n], enc[..n]);
     }
 
     #[test]

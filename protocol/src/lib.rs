@@ -4,7 +4,8 @@
 //! - [`Uplink`]: ground station to vehicle: the forward camera's line measurement of each frame (solved into a
 //!   pose on board, with the estimator's attitude at the frame's capture time), the downward camera's optical
 //!   flow of each frame pair (derotated and scaled on board), operator commands, heartbeats, parameters.
-//! - [`Downlink`]: vehicle to ground station: telemetry and command acknowledgements.
+//! - [`Downlink`]: vehicle to ground station: telemetry, command acknowledgements, parameter replies and the
+//!   answers to the station's clock synchronisation.
 //!
 //! All times are microseconds on the vehicle's clock.
 #![cfg_attr(not(test), no_std)]
@@ -69,6 +70,13 @@ pub enum Uplink {
     ParamGet(ParamId),
     /// A downward-camera frame pair's optical flow.
     Flow(FlowMeasurement),
+    /// Clock synchronisation, as MAVLink's TIMESYNC: the station's clock when it sent this (us); the vehicle
+    /// answers [`Downlink::TimeSync`] with its own clock, and the station estimates the offset and drift that
+    /// put its capture times on the vehicle's clock.
+    TimeSync {
+        /// The station's clock at sending (us).
+        station_time_us: u64,
+    },
 }
 
 /// Vehicle to ground station: what the flight code is doing.
@@ -105,4 +113,12 @@ pub enum Downlink {
     CommandAck(CommandResult),
     /// The answer to a parameter request.
     Param(ParamReply),
+    /// The answer to [`Uplink::TimeSync`]: the request's station time echoed, and the vehicle's clock at the
+    /// control step that read it.
+    TimeSync {
+        /// The request's station time (us), echoed.
+        station_time_us: u64,
+        /// The vehicle's clock at the step that read the request (us).
+        vehicle_time_us: u64,
+    },
 }

@@ -849,8 +849,14 @@ impl Sil {
                 stack.solve_pending();
                 if self.flight_log.is_some() {
                     // What the vehicle would send down the radio (the firmware's own schedule).
-                    self.log_downlinks
-                        .after_step(&o.control, o.param_reply, self.t_us, 0, |d| downlinks.push(d));
+                    self.log_downlinks.after_step(
+                        &o.control,
+                        o.param_reply,
+                        o.time_sync,
+                        self.t_us,
+                        0,
+                        |d| downlinks.push(d),
+                    );
                 }
                 o.report()
             }
