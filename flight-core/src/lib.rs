@@ -501,7 +501,8 @@ mod tests {
         assert_eq!(out.time_sync, Some(77_000_123));
         assert_eq!(out.report().time_sync, Some(77_000_123));
         let mut sent = std::vec::Vec::new();
-        telemetry::DownlinkSchedule::new().after_step(&out.control, None, out.time_sync, t, 0, |d| sent.push(d));
+        telemetry::DownlinkSchedule::new()
+            .after_step(&out.control, None, out.time_sync, t, 0, |d| sent.push(d));
         assert_eq!(sent, [protocol::Downlink::TimeSync { station_time_us: 77_000_123, vehicle_time_us: t }]);
         t += 2000;
         let out = s.step(&StepInput {
