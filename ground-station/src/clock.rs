@@ -100,8 +100,8 @@ impl ClockSync {
     /// A vehicle that reads requests at its control steps stamps its answer with the step after the request
     /// arrived: on average half a control period late (`period_us / 2`), a delay the request's direction
     /// seems to take and the answer's does not. Without this the offset reads that much too late on average
-    /// (0.4 ms at 500 Hz steps with ten exchanges a second through 5 ms of jitter). The intervals' upper ends are moved down by it; the
-    /// bound reported stays the causal one.
+    /// (0.4 ms at 500 Hz steps with ten exchanges a second through 5 ms of jitter). The intervals' upper
+    /// ends are moved down by it; the bound reported stays the causal one.
     pub fn with_answer_period(mut self, period_us: u64) -> Self {
         self.answer_latency_us = period_us as f64 * 0.5;
         self
