@@ -7,7 +7,7 @@ use crate::scenario::Scenario;
 use geometry::{Mat3, Vec2, Vec3};
 use serde_json::{Value, json};
 use vision_core::CameraModel;
-use vision_core::flow::{self, FlowParams, FlowStats, FlowWorkspace, NoFlowReason};
+use vision_core::flow::{self, FlowParams, FlowStats, NoFlowReason};
 
 /// A camera pose in the world: rotation (world from camera) and centre.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -18,13 +18,9 @@ pub struct CamPose {
     pub center: Vec3,
 }
 
-/// The flow of frame pairs, frame after frame.
-pub struct GroundFlow {
-    camera: CameraModel,
-    params: FlowParams,
-    ws: Box<FlowWorkspace>,
-    has_prev: bool,
-}
+/// The flow of frame pairs, frame after frame ([`ground_station::vision::FlowTracker`] on this crate's
+/// images).
+pub struct GroundFlow(ground_station::vision::FlowTracker);
 
 impl GroundFlow {
     /// For the scenario's downward camera, with the default flow parameters.
@@ -34,17 +30,17 @@ impl GroundFlow {
 
     /// For a camera and parameters.
     pub fn with_params(camera: CameraModel, params: FlowParams) -> Self {
-        Self { camera, params, ws: Box::new(FlowWorkspace::new()), has_prev: false }
+        Self(ground_station::vision::FlowTracker::new(camera, params))
     }
 
     /// The camera.
     pub fn camera(&self) -> &CameraModel {
-        &self.camera
+        self.0.camera()
     }
 
     /// The parameters.
     pub fn params(&self) -> &FlowParams {
-        &self.params
+        self.0.params()
     }
 
     /// Adds a frame; from the second one on, returns the flow from the previous frame, seeded with the
@@ -54,21 +50,7 @@ impl GroundFlow {
         img: &GrayImage,
         predicted_rotation_cam: Vec3,
     ) -> Option<Result<FlowStats, NoFlowReason>> {
-        let r =
-            flow::add_frame(&img.view(), &self.camera, &self.params, predicted_rotation_cam, &mut self.ws);
-        let first = !self.has_prev;
-        self.has_prev = true;
-        match r {
-            Ok(None) => None,
-            Ok(Some(s)) => Some(Ok(s)),
-            Err(e) if first => {
-                // A first frame of the wrong size: the next one starts again.
-                self.ws.reset();
-                self.has_prev = false;
-                Some(Err(e))
-            }
-            Err(e) => Some(Err(e)),
-        }
+        self.0.add(&img.view(), predicted_rotation_cam)
     }
 
     /// The flow between two frames (a fresh pair).
@@ -78,14 +60,7 @@ impl GroundFlow {
         next: &GrayImage,
         predicted_rotation_cam: Vec3,
     ) -> Result<FlowStats, NoFlowReason> {
-        flow::flow_between(
-            &prev.view(),
-            &next.view(),
-            &self.camera,
-            &self.params,
-            predicted_rotation_cam,
-            &mut self.ws,
-        )
+        self.0.between(&prev.view(), &next.view(), predicted_rotation_cam)
     }
 }
 

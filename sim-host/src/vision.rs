@@ -1,105 +1,32 @@
-//! The ground station's vision: vision-core run on a rendered or recorded frame, with JSON reports and
+//! The ground station's vision (the `ground-station` crate's) on this crate's images, with JSON reports and
 //! overlays for the command line.
 use crate::imageio::RgbImage;
 use crate::scenario::Scenario;
 use geometry::{Vec2, frames::Attitude};
 use serde_json::{Value, json};
-use vision_core::{
-    AttitudeSource, DetectorParams, DetectorWorkspace, LineObservation, NoTargetReason, PoseError,
-    PoseParams, PoseSolution, detect_line, solve_pose,
-};
+use vision_core::{AttitudeSource, DetectorParams, LineObservation, NoTargetReason};
 
-/// Which pose solver to run.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum PoseMethod {
-    /// Closed form, then reprojection-error refinement (default).
-    Refined,
-    /// Closed form only: vanishing points and least-squares translation.
-    ClosedForm,
-    /// The paper's method: vanishing points and depth from the line's apparent height.
-    Paper,
-}
+pub use ground_station::vision::{FrameResult, NoPose, PoseMethod};
 
-impl PoseMethod {
-    /// Solver parameters for this method.
-    pub fn params(self) -> PoseParams {
-        match self {
-            PoseMethod::Refined => PoseParams::default(),
-            PoseMethod::ClosedForm => {
-                PoseParams { refine: false, check_ambiguity: false, ..PoseParams::default() }
-            }
-            PoseMethod::Paper => PoseParams {
-                refine: false,
-                check_ambiguity: false,
-                translation: vision_core::TranslationMethod::PaperLineHeight,
-                ..PoseParams::default()
-            },
-        }
-    }
-}
-
-/// Why a frame gave no pose.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum NoPose {
-    /// The detector found no line.
-    Detection(NoTargetReason),
-    /// The solver rejected the measurement.
-    Solver(PoseError),
-}
-
-impl NoPose {
-    /// Stable code.
-    pub fn code(&self) -> &'static str {
-        match self {
-            NoPose::Detection(r) => r.code(),
-            NoPose::Solver(e) => e.code(),
-        }
-    }
-    /// Explanation.
-    pub fn describe(&self) -> &'static str {
-        match self {
-            NoPose::Detection(r) => r.describe(),
-            NoPose::Solver(e) => e.describe(),
-        }
-    }
-}
-
-/// A frame's vision result.
-#[derive(Clone, Copy, Debug)]
-pub struct FrameResult {
-    /// The measurement.
-    pub observation: LineObservation,
-    /// The pose.
-    pub pose: PoseSolution,
-}
-
-/// Frames in which the detector found no line, counted by its reason, so that a summary says why vision
-/// was blind (no red at all, the line clipped by the image's edge, ...) rather than only how often.
+/// Frames in which the detector found no line, counted by its reason (the station's counter, with the JSON a
+/// summary holds).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct NoTargetCounts {
-    counts: [u64; NoTargetReason::ALL.len()],
-}
+pub struct NoTargetCounts(pub ground_station::vision::NoTargetCounts);
 
 impl NoTargetCounts {
     /// Counts a detection's outcome and passes its observation on (`None` when it found no line).
     pub fn record(&mut self, detection: Result<LineObservation, NoTargetReason>) -> Option<LineObservation> {
-        match detection {
-            Ok(observation) => Some(observation),
-            Err(reason) => {
-                self.counts[reason as usize] += 1;
-                None
-            }
-        }
+        self.0.record(detection)
     }
 
     /// Frames refused for `reason`.
     pub fn get(&self, reason: NoTargetReason) -> u64 {
-        self.counts[reason as usize]
+        self.0.get(reason)
     }
 
     /// Frames refused for any reason.
     pub fn total(&self) -> u64 {
-        self.counts.iter().sum()
+        self.0.total()
     }
 
     /// Every reason's count by its code (zeros included, so the keys do not depend on the flight).
@@ -111,39 +38,36 @@ impl NoTargetCounts {
 
     /// The reasons that occurred, largest first: `no_red_pixels 120, line_clipped 4` (empty when none).
     pub fn describe(&self) -> String {
-        let mut seen: Vec<(NoTargetReason, u64)> =
-            NoTargetReason::ALL.iter().map(|r| (*r, self.get(*r))).filter(|(_, n)| *n > 0).collect();
-        seen.sort_by_key(|(r, n)| (std::cmp::Reverse(*n), *r as usize));
-        seen.iter().map(|(r, n)| format!("{} {n}", r.code())).collect::<Vec<_>>().join(", ")
+        self.0.describe()
     }
 }
 
-/// Runs detection and pose on one frame.
+/// The ground station's line vision for a scenario's forward camera and line
+/// ([`ground_station::vision::LineVision`], on this crate's images).
 pub struct GroundVision {
     scenario: Scenario,
-    detector: DetectorParams,
-    workspace: Box<DetectorWorkspace>,
+    inner: ground_station::vision::LineVision,
 }
 
 impl GroundVision {
     /// Vision for a scenario's camera and line.
     pub fn new(scenario: &Scenario) -> Self {
-        Self {
-            scenario: scenario.clone(),
-            detector: DetectorParams::default(),
-            workspace: Box::new(DetectorWorkspace::new()),
-        }
+        let inner = ground_station::vision::LineVision::new(
+            scenario.forward_camera_model(),
+            scenario.line_target(),
+            scenario.forward_camera_mount(),
+        );
+        Self { scenario: scenario.clone(), inner }
     }
 
     /// The detector's tuning.
     pub fn detector_params(&self) -> &DetectorParams {
-        &self.detector
+        self.inner.detector_params()
     }
 
     /// Detects the line.
     pub fn detect(&mut self, img: &RgbImage) -> Result<LineObservation, NoTargetReason> {
-        let cam = self.scenario.forward_camera_model();
-        detect_line(&img.view(), &cam, &self.detector, &mut self.workspace)
+        self.inner.detect(&img.view())
     }
 
     /// Detects the line and solves the pose.
@@ -153,18 +77,7 @@ impl GroundVision {
         source: AttitudeSource,
         method: PoseMethod,
     ) -> Result<FrameResult, NoPose> {
-        let observation = self.detect(img).map_err(NoPose::Detection)?;
-        let s = &self.scenario;
-        let pose = solve_pose(
-            &observation,
-            &s.forward_camera_model(),
-            &s.line_target(),
-            &s.forward_camera_mount(),
-            source,
-            &method.params(),
-        )
-        .map_err(NoPose::Solver)?;
-        Ok(FrameResult { observation, pose })
+        self.inner.pose(&img.view(), source, method)
     }
 
     /// The scenario.
