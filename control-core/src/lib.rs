@@ -89,6 +89,10 @@ pub const TAKEOFF_AIRBORNE_M: f32 = 0.1;
 /// again from the new estimate, as after a position reset.
 pub const HEIGHT_JUMP_M: f32 = 0.1;
 
+/// A blind hold or landing backs away from the wall by this many standard deviations of the estimate's
+/// distance to it (`failsafe.blind_retreat_speed_m_s`, at most `failsafe.blind_retreat_max_m`).
+pub const BLIND_RETREAT_SIGMAS: f32 = 2.0;
+
 /// A sweep slows to a stop while the gyro has read a held, clipped value within this time (s): a gyro that
 /// saturates below the rates a manoeuvre needs cannot damp it (the estimator counts the clipped samples,
 /// `gyro_clipped`); hovering needs far smaller rates.
@@ -775,8 +779,12 @@ impl ControlCore {
             self.last_flow_us.is_some_and(|t| now.saturating_sub(t) as f32 * 1e-6 <= fs.vision_hold_after_s);
         let blind =
             matches!(self.mode, FlightMode::VisionHold | FlightMode::Landing) && !vision_fresh && !flow_fresh;
-        let retreat_step = if blind && self.retreat_m < fs.blind_retreat_max_m {
-            let d = (fs.blind_retreat_speed_m_s * dt).min(fs.blind_retreat_max_m - self.retreat_m);
+        // How far: twice the estimate's own distance uncertainty (the wall kept two sigmas away), at most
+        // `blind_retreat_max_m`. A short blind spell, whose estimate is still sharp, hardly moves the vehicle.
+        let retreat_target =
+            (BLIND_RETREAT_SIGMAS * est.position_std_m.y).min(fs.blind_retreat_max_m).max(0.0);
+        let retreat_step = if blind && self.retreat_m < retreat_target {
+            let d = (fs.blind_retreat_speed_m_s * dt).min(retreat_target - self.retreat_m);
             self.retreat_m += d;
             d
         } else {

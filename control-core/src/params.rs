@@ -567,7 +567,8 @@ params_struct! {
         /// away from the wall at this speed (m/s; 0: stays). Dead reckoning drifts a metre in a few seconds
         /// of turbulence, in any direction; the wall is the one obstacle the vehicle knows, and it is in front.
         blind_retreat_speed_m_s: f32 = 0.2, { >= 0.0, <= 1.0 } "m/s";
-        /// ... for at most this far in one blind spell, by the estimate (m).
+        /// ... as far as twice the estimate's standard deviation of its distance to the wall
+        /// (`BLIND_RETREAT_SIGMAS`), and at most this far in one blind spell (m).
         blind_retreat_max_m: f32 = 1.0, { >= 0.0, <= 5.0 } "m";
         /// No IMU sample for this long: motors off (s).
         imu_timeout_s: f32 = 0.05, { > 0.0, <= 1.0 } "s";

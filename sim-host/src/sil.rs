@@ -20,8 +20,8 @@ use crate::scenario::Scenario;
 use crate::sensors::{ImuFaults, ImuModel};
 use crate::vision::GroundVision;
 use anyhow::Result;
+use control_core::FlightMode;
 use control_core::estimator::ImuSample;
-use control_core::{Command, FlightMode};
 use flight_core::flow::FlowOutcome;
 use flight_core::{FlightConfig, FlightStack, StepInput, StepReport};
 use geometry::frames::Attitude;
@@ -290,10 +290,12 @@ pub struct Sil {
     tracking: Rms,
     estimate: Rms,
     tracking_since: Option<f64>,
-    hover_since: Option<u64>,
-    sent: [bool; 4],
-    /// When each of the operator's commands was last sent (for the retries of an unanswered one).
-    sent_at: [u64; 4],
+    /// The ground station's operator (the mission's script).
+    operator: ground_station::operator::Operator,
+    /// Downlink messages on their way to the ground station, with their arrival times.
+    downlink_queue: VecDeque<(u64, protocol::Downlink)>,
+    /// The last telemetry the ground station received.
+    station_telemetry: Option<protocol::Telemetry>,
     was_airborne: bool,
     done_at: Option<u64>,
     last_failsafe: Option<control_core::Failsafe>,
@@ -330,9 +332,6 @@ fn attitude_of(r: &[[f64; 3]; 3]) -> [f64; 3] {
     let yaw = n[1][0].atan2(n[0][0]);
     [roll, pitch, yaw]
 }
-
-/// The simulated operator sends an unanswered command again after this long (us).
-const COMMAND_RETRY_US: u64 = 1_000_000;
 
 impl Sil {
     /// Prepares a run with the flight stack in this process.
@@ -465,9 +464,14 @@ impl Sil {
             tracking: Rms::default(),
             estimate: Rms::default(),
             tracking_since: None,
-            hover_since: None,
-            sent: [false; 4],
-            sent_at: [0; 4],
+            operator: ground_station::operator::Operator::new(ground_station::operator::MissionScript {
+                arm_at_s: scenario.mission.arm_at_s,
+                takeoff_at_s: scenario.mission.takeoff_at_s,
+                track_after_hover_s: scenario.mission.track_after_hover_s,
+                land_when_done: scenario.mission.land_when_done,
+            }),
+            downlink_queue: VecDeque::new(),
+            station_telemetry: None,
             was_airborne: false,
             done_at: None,
             last_failsafe: None,
@@ -681,8 +685,9 @@ impl Sil {
         let cfg = self.scenario.down_camera.clone();
         let (pose, cam_pose) = self.down_pose();
         let dt = 1.0 / cfg.rate_hz;
-        // The ground station's guess of the rotation over the interval: the last telemetry's rates.
-        let rates = self.last_out.map(|o| o.control.estimate.rates_rad_s).unwrap_or(Vec3::ZERO);
+        // The ground station's guess of the rotation over the interval: the rates of the last telemetry that
+        // came down the radio.
+        let rates = self.station_telemetry.map(|t| t.estimate.rates_rad_s).unwrap_or(Vec3::ZERO);
         let r_bc = self.scenario.down_camera_mount().body_from_camera;
         let predicted = r_bc.transpose().mul_vec(rates * dt as f32);
         let result = match (&self.down_renderer, &mut self.ground_flow) {
@@ -762,58 +767,21 @@ impl Sil {
         }
     }
 
+    /// The ground station's operator: it sees the vehicle only through the telemetry that came down the
+    /// radio, and runs the mission's script ([`ground_station::operator::Operator`], as the station does).
     fn operator(&mut self) {
-        let mi = self.scenario.mission.clone();
-        let t = self.time_s();
+        while let Some(&(at, d)) = self.downlink_queue.front() {
+            if at > self.t_us {
+                break;
+            }
+            self.downlink_queue.pop_front();
+            if let protocol::Downlink::Telemetry(t) = d {
+                self.station_telemetry = Some(t);
+            }
+        }
         let lat = (self.scenario.link.latency_s * 1e6) as u64;
-        let mode = self.last_out.map(|o| o.control.status.mode);
-        let mut cmd = None;
-        if !self.sent[0] && t >= mi.arm_at_s {
-            self.sent[0] = true;
-            cmd = Some(Command::Arm);
-        } else if !self.sent[1] && t >= mi.takeoff_at_s && mode == Some(FlightMode::Armed) {
-            self.sent[1] = true;
-            cmd = Some(Command::TakeOff);
-        } else if !self.sent[2] && self.sent[1] && mode == Some(FlightMode::Hover) {
-            let since = *self.hover_since.get_or_insert(self.t_us);
-            if (self.t_us - since) as f64 * 1e-6 >= mi.track_after_hover_s {
-                self.sent[2] = true;
-                cmd = Some(Command::StartTracking);
-            }
-        } else if !self.sent[3]
-            && self.sent[2]
-            && mi.land_when_done
-            && mode == Some(FlightMode::Hover)
-            && self.tracking_since.is_some()
-        {
-            self.sent[3] = true;
-            cmd = Some(Command::Land);
-        }
-        // A command the vehicle has not acted on within a second is sent again, as a ground station retries
-        // an unacknowledged command (the link may have lost it): arm while disarmed, take off while armed,
-        // start the sweep or land while hovering.
-        if cmd.is_none() {
-            let waiting = [
-                (0, Command::Arm, mode == Some(FlightMode::Disarmed) && !self.was_airborne),
-                (1, Command::TakeOff, mode == Some(FlightMode::Armed)),
-                (2, Command::StartTracking, mode == Some(FlightMode::Hover) && self.tracking_since.is_none()),
-                (3, Command::Land, mode == Some(FlightMode::Hover) && self.tracking_since.is_some()),
-            ];
-            for (i, c, still) in waiting {
-                if self.sent[i] && still && self.t_us.saturating_sub(self.sent_at[i]) >= COMMAND_RETRY_US {
-                    cmd = Some(c);
-                    break;
-                }
-            }
-        }
-        if let Some(c) = cmd {
-            let i = match c {
-                Command::Arm => 0,
-                Command::TakeOff => 1,
-                Command::StartTracking => 2,
-                _ => 3,
-            };
-            self.sent_at[i] = self.t_us;
+        let mode = self.station_telemetry.map(|t| t.mode);
+        if let Some(c) = self.operator.tick(self.t_us, mode) {
             self.send(self.t_us + lat, Uplink::Command(c));
         }
         if self.t_us >= self.next_heartbeat_us {
@@ -847,17 +815,9 @@ impl Sil {
                 let o = stack.step(&input);
                 // Background work, in the firmware's order: after the step, fused by the next one.
                 stack.solve_pending();
-                if self.flight_log.is_some() {
-                    // What the vehicle would send down the radio (the firmware's own schedule).
-                    self.log_downlinks.after_step(
-                        &o.control,
-                        o.param_reply,
-                        o.time_sync,
-                        self.t_us,
-                        0,
-                        |d| downlinks.push(d),
-                    );
-                }
+                // What the vehicle sends down the radio (the firmware's own schedule).
+                self.log_downlinks
+                    .after_step(&o.control, o.param_reply, o.time_sync, self.t_us, 0, |d| downlinks.push(d));
                 o.report()
             }
             Some(Fc::Qemu(q)) => match q.step(&input) {
@@ -912,6 +872,16 @@ impl Sil {
             records.push(LogRecord::Report(out));
             records.extend(downlinks.iter().map(|d| LogRecord::Downlink(*d)));
             self.write_log(&records);
+        }
+        // The ground station receives them after the link's latency (lost while the link is down).
+        let lat = (self.scenario.link.latency_s * 1e6) as u64;
+        let link_down = self.fault_active(|k| matches!(k, FaultKind::LinkLoss)).is_some();
+        for d in downlinks {
+            if link_down {
+                self.link_dropped += 1;
+            } else {
+                self.downlink_queue.push_back((self.t_us + lat, d));
+            }
         }
         self.pending_imu.clear();
         if let Some(log) = self.motor_log.as_mut() {
