@@ -6,5 +6,7 @@
 #![warn(missing_docs)]
 
 pub mod clock;
+pub mod link;
 pub mod operator;
+pub mod stream;
 pub mod vision;
