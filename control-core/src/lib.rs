@@ -355,6 +355,8 @@ pub struct ControlCore {
     last_est_z: Option<f32>,
     /// The sweep a vision hold interrupted, resumed when vision returns.
     paused_sweep: Option<Sweep>,
+    /// The way back to the sweep's distance and height after a hold (y, z), and when it began.
+    rejoin: Option<(trajectory::Rejoin, trajectory::Rejoin, u64)>,
     limiter: laws::SetpointLimiter,
 }
 
@@ -407,6 +409,7 @@ impl ControlCore {
             accel_lp: None,
             resume_climb: false,
             paused_sweep: None,
+            rejoin: None,
             position_resets_seen: 0,
             last_est_z: None,
             hover_thrust_n: None,
@@ -458,6 +461,7 @@ impl ControlCore {
         self.mode = mode;
         self.sweep = None;
         self.paused_sweep = None;
+        self.rejoin = None;
         self.vertical = None;
         self.controller.reset();
     }
@@ -521,6 +525,13 @@ impl ControlCore {
                     self.hold.x,
                     self.sweep_clock_us,
                 ));
+                // The sweep's distance and height from where the vehicle is (after a hold it may be well off).
+                let (p, v) = (est.position_m, est.velocity_m_s);
+                self.rejoin = Some((
+                    trajectory::Rejoin::new(p.y, v.y, t.y_d_m, t.speed_m_s, t.accel_m_s2),
+                    trajectory::Rejoin::new(p.z, v.z, t.z_d_m, t.speed_m_s, t.accel_m_s2),
+                    now,
+                ));
                 Ok(())
             }
             (Command::StopTracking, Tracking) => {
@@ -545,6 +556,7 @@ impl ControlCore {
         self.mode = FlightMode::Landing;
         self.sweep = None;
         self.paused_sweep = None;
+        self.rejoin = None;
         self.hold.x = est.position_m.x;
         self.hold.y = est.position_m.y;
         // The descent does not stop at the floor: after touchdown the reference goes on down, the altitude
@@ -722,6 +734,7 @@ impl ControlCore {
                 self.failsafe = Some(Failsafe::VisionLost);
                 self.resume_climb = self.mode == FlightMode::TakeOff;
                 self.paused_sweep = self.sweep.take();
+                self.rejoin = None;
                 self.mode = FlightMode::VisionHold;
                 self.hold_since_us = now;
                 // Hold where the vehicle is; the setpoint limiter ramps there from where it was.
@@ -738,10 +751,17 @@ impl ControlCore {
                         self.start_vertical(est.position_m.z, traj.z_d_m, traj.takeoff_speed_m_s, now);
                         self.settled_since_us = None;
                     } else if let Some(mut sw) = self.paused_sweep.take() {
-                        // A sweep goes on with its pass from where the vehicle is.
+                        // A sweep goes on with its pass from where the vehicle is; the distance and the height
+                        // come back from where the vehicle is and how fast it moves.
                         sw.resume(est.position_m.x, self.sweep_clock_us);
                         self.sweep = Some(sw);
                         self.mode = FlightMode::Tracking;
+                        let (p, v) = (est.position_m, est.velocity_m_s);
+                        self.rejoin = Some((
+                            trajectory::Rejoin::new(p.y, v.y, traj.y_d_m, traj.speed_m_s, traj.accel_m_s2),
+                            trajectory::Rejoin::new(p.z, v.z, traj.z_d_m, traj.speed_m_s, traj.accel_m_s2),
+                            now,
+                        ));
                     } else {
                         self.mode = FlightMode::Hover;
                     }
@@ -865,6 +885,15 @@ impl ControlCore {
                     sp.position_m = Vec3::new(x, traj.y_d_m, traj.z_d_m);
                     sp.velocity_m_s.x = vx * pace;
                     sp.accel_m_s2.x = ax * pace * pace;
+                    if let Some((ry, rz, t0)) = self.rejoin {
+                        let t = now.saturating_sub(t0) as f32 * 1e-6;
+                        let ((y, vy, ay), (z, vz, az)) = (ry.eval(t), rz.eval(t));
+                        (sp.position_m.y, sp.velocity_m_s.y, sp.accel_m_s2.y) = (y, vy, ay);
+                        (sp.position_m.z, sp.velocity_m_s.z, sp.accel_m_s2.z) = (z, vz, az);
+                        if t >= ry.duration_s().max(rz.duration_s()) {
+                            self.rejoin = None;
+                        }
+                    }
                     self.hold = sp.position_m;
                     if sw.finished() {
                         self.mode = FlightMode::Hover;

@@ -75,6 +75,46 @@ impl Move {
     }
 }
 
+/// The way back to a reference from where a vehicle is and how fast it moves: a stop at acceleration `a`
+/// (the velocity it has ramps to zero), then a rest-to-rest [`Move`] to the target. After a vision hold the
+/// vehicle may be metres per second off its sweep's standoff and moving away; a reference that stepped to
+/// the standoff's direction at the limiter's rate reversed the velocity demand at once (0.9 m/s), which the
+/// vehicle followed with decimetres of lag.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Rejoin {
+    /// The stop.
+    pub stop: Segment,
+    /// Then the move.
+    pub back: Move,
+}
+
+impl Rejoin {
+    /// From position `p0` at velocity `v0` to `target`, with top speed `v` and acceleration `a` (positive).
+    pub fn new(p0: f32, v0: f32, target: f32, v: f32, a: f32) -> Self {
+        let t_stop = libm::fabsf(v0) / a;
+        let b2 = if v0 > 0.0 { -0.5 * a } else { 0.5 * a };
+        let stop = Segment { b0: p0, b1: v0, b2, duration_s: t_stop };
+        let p_stop = stop.eval(t_stop).0;
+        Self { stop, back: Move::new(p_stop, target, v, a) }
+    }
+
+    /// Total duration (s).
+    pub fn duration_s(&self) -> f32 {
+        self.stop.duration_s + self.back.duration_s()
+    }
+
+    /// Position, velocity, acceleration `t` seconds after the start (held at the target afterwards).
+    pub fn eval(&self, t: f32) -> (f32, f32, f32) {
+        if t <= self.stop.duration_s {
+            self.stop.eval(t.max(0.0))
+        } else {
+            self.back.eval(t - self.stop.duration_s)
+        }
+    }
+}
+
 /// The back-and-forth sweep along x.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
@@ -147,6 +187,31 @@ impl Sweep {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rejoin_stops_then_comes_back_without_a_step() {
+        // Moving away at 0.26 m/s, 0.4 m beyond the target.
+        let r = Rejoin::new(1.7, 0.26, 1.3, 0.25, 0.25);
+        let (p, v, a) = r.eval(0.0);
+        assert_eq!((p, v, a), (1.7, 0.26, -0.25));
+        // Stops at 1.7 + 0.26^2 / 0.5 after 0.26 / 0.25 s.
+        let (p, v, _) = r.eval(0.26 / 0.25);
+        assert!((p - (1.7 + 0.26 * 0.26 / 0.5)).abs() < 1e-5 && v.abs() < 1e-6, "{p} {v}");
+        assert_eq!(r.eval(r.duration_s() + 1.0), (1.3, 0.0, 0.0));
+        // The velocity never changes faster than the acceleration allows (no step), sampled at 2 ms.
+        let mut prev = r.eval(0.0).1;
+        let mut t = 0.0;
+        while t < r.duration_s() + 0.1 {
+            t += 0.002;
+            let v = r.eval(t).1;
+            assert!((v - prev).abs() <= 0.25 * 0.002 + 1e-5, "at {t}: {prev} -> {v}");
+            prev = v;
+        }
+        // Moving toward the target already: the stop is in the target's direction.
+        let r = Rejoin::new(1.0, 0.1, 1.3, 0.25, 0.25);
+        assert!(r.eval(0.4).0 > 1.0);
+        assert_eq!(r.eval(r.duration_s()).0, 1.3);
+    }
 
     #[test]
     fn move_is_continuous_and_reaches_the_end() {
