@@ -400,6 +400,11 @@ params_struct! {
         gyro_bias_walk: f32 = 1e-3, { > 0.0, <= 1.0 } "rad/s^2/sqrt(Hz)";
         /// Accelerometer bias random walk (m/s^3/sqrt(Hz)).
         accel_bias_walk: f32 = 3e-3, { > 0.0, <= 10.0 } "m/s^3/sqrt(Hz)";
+        /// The accelerometer bias estimate is held within +-this on each axis (m/s^2). A MEMS accelerometer's
+        /// offset is some tens of mg, and unbounded the bias, the tilt and the wind can drift together, each
+        /// explaining the others to the position fixes (PX4's EKF2 bounds its estimate the same way,
+        /// `EKF2_ABL_LIM`, 0.4 m/s^2 by default).
+        accel_bias_limit_m_s2: f32 = 0.6, { > 0.0, <= 10.0 } "m/s^2";
         /// Lower bound of the vision position standard deviation (m).
         vision_position_floor_m: f32 = 0.004, { > 0.0, <= 1.0 } "m";
         /// Lower bound of the vision yaw standard deviation (rad).

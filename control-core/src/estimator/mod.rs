@@ -671,7 +671,9 @@ impl Estimator {
         self.corr.v += v3(IV);
         self.corr.th += v3(ITH);
         self.bg += v3(IBG);
-        self.ba += v3(IBA);
+        let lim = self.params.accel_bias_limit_m_s2;
+        let ba = self.ba + v3(IBA);
+        self.ba = Vec3::new(ba.x.clamp(-lim, lim), ba.y.clamp(-lim, lim), ba.z.clamp(-lim, lim));
         self.w += Vec3::new(dx[IW], dx[IW + 1], 0.0);
     }
 

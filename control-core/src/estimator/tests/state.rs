@@ -327,3 +327,17 @@ fn samples_that_are_not_finite_or_not_newer_are_refused_and_a_held_gyro_is_count
     assert!(e.predict(&at(8000, [0.01, 0.0, 0.0], level)));
     assert_eq!(e.counters().gyro_clipped, 2);
 }
+
+#[test]
+fn the_accelerometer_bias_estimate_stays_within_its_limit() {
+    // A correction that would take the bias beyond a MEMS part's offset is cut at the limit, per axis and in
+    // both directions; one within it is applied in full.
+    let mut e = with_distinct_covariance();
+    let lim = e.params.accel_bias_limit_m_s2;
+    let mut dx = [0.0; N];
+    (dx[IBA], dx[IBA + 1], dx[IBA + 2]) = (5.0, -5.0, 0.25 * lim);
+    e.inject(&dx);
+    assert_eq!(e.ba, Vec3::new(lim, -lim, 0.25 * lim));
+    e.inject(&dx);
+    assert_eq!(e.ba.z, 0.5 * lim);
+}
