@@ -5,6 +5,7 @@
 //! *vehicle's* clock, so the station first needs to know that clock: [`clock`].
 #![warn(missing_docs)]
 
+pub mod calib;
 pub mod clock;
 pub mod link;
 pub mod operator;

@@ -146,3 +146,25 @@ fn a_euroc_dataset_imports_and_replays_through_the_estimator_and_the_vision() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_malformed_camera_calibration_is_refused_naming_the_file_and_the_field() {
+    let dir = std::env::temp_dir().join(format!("euroc-badcal-{}", std::process::id()));
+    let root = dir.join("mav0");
+    std::fs::create_dir_all(root.join("imu0")).unwrap();
+    std::fs::create_dir_all(root.join("cam0")).unwrap();
+    std::fs::write(root.join("imu0").join("data.csv"), "#timestamp\n1000,0,0,0,0,0,9.8\n").unwrap();
+    // Three intrinsics instead of four: before, the camera silently stayed the scenario's.
+    std::fs::write(root.join("cam0").join("sensor.yaml"), SENSOR_YAML.replace(", 248.375]", "]")).unwrap();
+    let opts = EurocOptions {
+        dir: dir.clone(),
+        scenario: Scenario::paper(),
+        cam0: CameraId::Forward,
+        imu_to_body: EUROC_IMU_TO_BODY,
+        latency_s: 0.0,
+        window: Default::default(),
+    };
+    let e = import_euroc(&opts, &dir.join("out.log"), |_| {}).unwrap_err().to_string();
+    std::fs::remove_dir_all(&dir).ok();
+    assert!(e.contains("sensor.yaml") && e.contains("intrinsics"), "{e}");
+}

@@ -91,17 +91,6 @@ fn num<T: std::str::FromStr>(path: &Path, line: usize, cell: &str, what: &str) -
 }
 
 /// Reads a flat YAML list value `key: [a, b, c]` (the form of the ASL sensor files).
-fn yaml_list(text: &str, key: &str) -> Option<Vec<f64>> {
-    let line = text.lines().find(|l| l.trim_start().starts_with(&format!("{key}:")))?;
-    let inner = line.split_once('[')?.1.split_once(']')?.0;
-    inner.split(',').map(|v| v.trim().parse().ok()).collect()
-}
-
-fn yaml_number(text: &str, key: &str) -> Option<f64> {
-    let line = text.lines().find(|l| l.trim_start().starts_with(&format!("{key}:")))?;
-    line.split_once(':')?.1.split('#').next()?.trim().parse().ok()
-}
-
 /// Reads the dataset into this project's frames (times in us since the first IMU sample's
 /// nanosecond timestamp, which is returned too).
 fn read(root: &Path, m: &[[f32; 3]; 3]) -> Result<(ImportData, u64)> {
@@ -271,28 +260,20 @@ pub fn import_euroc(opts: &EurocOptions, out: &Path, progress: impl FnMut(f64)) 
     super::recorded_imu_tuning(&mut scenario);
     let cam_dir = root.join("cam0");
     let yaml_path = cam_dir.join("sensor.yaml");
-    if let Ok(yaml) = std::fs::read_to_string(&yaml_path) {
-        let res = yaml_list(&yaml, "resolution");
-        let k = yaml_list(&yaml, "intrinsics");
-        let d = yaml_list(&yaml, "distortion_coefficients");
-        let rate = yaml_number(&yaml, "rate_hz");
+    let mut camera_notes = Vec::new();
+    if yaml_path.is_file() {
+        // The same reader as the ground station's `--calib-*` (a malformed file is refused, naming the field).
+        let cal = ground_station::calib::load(&yaml_path).map_err(anyhow::Error::msg)?;
+        let k = cal.camera;
+        let (w, h) = (k.width, k.height);
+        let [fx, fy, cx, cy] = cal.intrinsics_px;
         match opts.cam0 {
             CameraId::Forward => {
                 let c = &mut scenario.forward_camera;
-                if let (Some(r), Some(k)) = (&res, &k)
-                    && r.len() == 2
-                    && k.len() == 4
-                {
-                    (c.width_px, c.height_px) = (r[0] as u16, r[1] as u16);
-                    (c.fx_px, c.fy_px, c.cx_px, c.cy_px) = (k[0], k[1], k[2], k[3]);
-                }
-                if let Some(d) = &d
-                    && d.len() >= 4
-                {
-                    // radial-tangential k1, k2, p1, p2 (OpenCV order).
-                    c.distortion = [d[0], d[1], d[2], d[3], d.get(4).copied().unwrap_or(0.0)];
-                }
-                if let Some(r) = rate {
+                (c.width_px, c.height_px) = (w, h);
+                (c.fx_px, c.fy_px, c.cx_px, c.cy_px) = (fx, fy, cx, cy);
+                c.distortion = cal.distortion;
+                if let Some(r) = cal.rate_hz {
                     c.rate_hz = r;
                 }
                 c.latency_s = opts.latency_s;
@@ -300,14 +281,16 @@ pub fn import_euroc(opts: &EurocOptions, out: &Path, progress: impl FnMut(f64)) 
             }
             CameraId::Downward => {
                 let c = &mut scenario.down_camera;
-                if let (Some(r), Some(k)) = (&res, &k)
-                    && r.len() == 2
-                    && k.len() == 4
-                {
-                    (c.width_px, c.height_px) = (r[0] as u16, r[1] as u16);
-                    (c.fx_px, c.fy_px, c.cx_px, c.cy_px) = (k[0], k[1], k[2], k[3]);
+                if !k.distortion.is_zero() {
+                    camera_notes.push(format!(
+                        "{}: the downward camera's lens distortion is not modelled by the flow (its \
+                         intrinsics are used, its distortion coefficients are not)",
+                        yaml_path.display()
+                    ));
                 }
-                if let Some(r) = rate {
+                (c.width_px, c.height_px) = (w, h);
+                (c.fx_px, c.fy_px, c.cx_px, c.cy_px) = (fx, fy, cx, cy);
+                if let Some(r) = cal.rate_hz {
                     c.rate_hz = r;
                 }
                 c.enabled = true;
@@ -330,7 +313,7 @@ pub fn import_euroc(opts: &EurocOptions, out: &Path, progress: impl FnMut(f64)) 
             frames.push(((ns - t0 + 500) / 1000, cam_dir.join("data").join(&c[1])));
         }
     }
-    let mut notes = Vec::new();
+    let mut notes = camera_notes;
     if frames.is_empty() && data.mag.is_empty() {
         notes.push(
             "neither a camera nor a magnetometer: yaw is unobservable (the summary compares it after removing \
