@@ -332,8 +332,8 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
             (c.camera.fx, c.camera.fy, c.camera.cx, c.camera.cy),
             (458.654, 457.296, 367.215, 248.375)
         );
-        assert_eq!(c.camera.distortion.k1, -0.28340811);
-        assert_eq!(c.camera.distortion.p2, 1.76187114e-05);
+        assert_eq!(c.camera.distortion.k1, -0.28340811f64 as f32);
+        assert_eq!(c.camera.distortion.p2, 1.76187114e-05f64 as f32);
         assert_eq!(c.camera.distortion.k3, 0.0);
         assert_eq!(c.rate_hz, Some(20.0));
         assert_eq!(c.intrinsics_px, [458.654, 457.296, 367.215, 248.375]);

@@ -17,12 +17,22 @@ pub struct MissionScript {
     pub track_after_hover_s: f64,
     /// Land when the sweep is done (the vehicle hovers again after tracking).
     pub land_when_done: bool,
+    /// Sweep; without it the vehicle lands after its hover (a short mission: take-off, hover, landing).
+    pub sweep: bool,
 }
 
 impl MissionScript {
     /// The paper's mission: arm at 1 s, take off at 2 s, sweep after 2 s of hover, land when done.
-    pub const PAPER: Self =
-        Self { arm_at_s: 1.0, takeoff_at_s: 2.0, track_after_hover_s: 2.0, land_when_done: true };
+    pub const PAPER: Self = Self {
+        arm_at_s: 1.0,
+        takeoff_at_s: 2.0,
+        track_after_hover_s: 2.0,
+        land_when_done: true,
+        sweep: true,
+    };
+
+    /// The paper's mission without the sweep: arm, take off, hover 2 s, land.
+    pub const HOVER: Self = Self { sweep: false, ..Self::PAPER };
 }
 
 /// The script's state: which commands were sent, when, and what the vehicle has been seen doing.
@@ -78,10 +88,10 @@ impl Operator {
             cmd = Some(Command::Arm);
         } else if !self.sent[1] && t >= s.takeoff_at_s && mode == Some(FlightMode::Armed) {
             cmd = Some(Command::TakeOff);
-        } else if !self.sent[2] && self.sent[1] && mode == Some(FlightMode::Hover) {
+        } else if !self.sent[2] && !self.sent[3] && self.sent[1] && mode == Some(FlightMode::Hover) {
             let since = *self.hover_since.get_or_insert(t_us);
             if (t_us - since) as f64 * 1e-6 >= s.track_after_hover_s {
-                cmd = Some(Command::StartTracking);
+                cmd = Some(if s.sweep { Command::StartTracking } else { Command::Land });
             }
         } else if !self.sent[3]
             && self.sent[2]
@@ -96,7 +106,7 @@ impl Operator {
                 (0, Command::Arm, mode == Some(FlightMode::Disarmed) && !self.was_airborne),
                 (1, Command::TakeOff, mode == Some(FlightMode::Armed)),
                 (2, Command::StartTracking, mode == Some(FlightMode::Hover) && !self.tracked),
-                (3, Command::Land, mode == Some(FlightMode::Hover) && self.tracked),
+                (3, Command::Land, mode == Some(FlightMode::Hover) && (self.tracked || !s.sweep)),
             ];
             for (i, c, still) in waiting {
                 if self.sent[i] && still && t_us.saturating_sub(self.sent_at[i]) >= COMMAND_RETRY_US {
@@ -144,5 +154,19 @@ mod tests {
         assert_eq!(op.tick(s(30.0), Some(FlightMode::Hover)), Some(Command::Land));
         assert_eq!(op.tick(s(30.5), Some(FlightMode::Landing)), None);
         assert_eq!(op.tick(s(40.0), Some(FlightMode::Disarmed)), None, "no re-arm after the flight");
+    }
+
+    #[test]
+    fn the_hover_script_lands_after_the_hover_and_retries_the_landing() {
+        let mut op = Operator::new(MissionScript::HOVER);
+        let s = |t: f64| (t * 1e6) as u64;
+        assert_eq!(op.tick(s(1.0), Some(FlightMode::Disarmed)), Some(Command::Arm));
+        assert_eq!(op.tick(s(2.0), Some(FlightMode::Armed)), Some(Command::TakeOff));
+        assert_eq!(op.tick(s(5.0), Some(FlightMode::Hover)), None);
+        assert_eq!(op.tick(s(7.0), Some(FlightMode::Hover)), Some(Command::Land));
+        // Still hovering (the command was lost): not at once, again after a second.
+        assert_eq!(op.tick(s(7.1), Some(FlightMode::Hover)), None);
+        assert_eq!(op.tick(s(8.0), Some(FlightMode::Hover)), Some(Command::Land));
+        assert_eq!(op.tick(s(9.0), Some(FlightMode::Landing)), None);
     }
 }

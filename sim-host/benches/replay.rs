@@ -29,6 +29,7 @@ fn flight_log(
         fc: FcChoice::Sil,
         log: true,
         frames,
+        serve: None,
     };
     fly(&opts, |_, _| {}).expect("flight");
     dir.join(LOG_FILE)

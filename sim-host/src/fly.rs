@@ -30,6 +30,8 @@ pub struct FlyOptions {
     pub log: bool,
     /// Whether the log keeps the camera frames, and how.
     pub frames: crate::flightlog::FramePolicy,
+    /// Serve a separate ground station in real time (the virtual vehicle) instead of running one here.
+    pub serve: Option<crate::virtual_vehicle::ServeOptions>,
 }
 
 /// The outcome of a flight.
@@ -99,7 +101,27 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
         sil.record_log(crate::flightlog::LogWriter::create(&log_path, &header)?, opts.frames);
     }
     let t0 = Instant::now();
-    let stats = sil.run(end, |t| progress(t, end));
+    let mut serve_stats = None;
+    let stats = match &opts.serve {
+        None => sil.run(end, |t| progress(t, end)),
+        Some(serve) => {
+            let bound = crate::virtual_vehicle::Bound::bind(serve)?;
+            let (link, forward, down) = bound.addresses();
+            // On stdout, one line each, for whoever starts the station (a port 0 was chosen here).
+            println!("serving link tcp:{link}");
+            println!("serving forward tcp:{forward}");
+            if let Some(d) = down {
+                println!("serving down tcp:{d}");
+            }
+            use std::io::Write as _;
+            std::io::stdout().flush()?;
+            let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+            let (st, ss) =
+                crate::virtual_vehicle::serve(&mut sil, bound, serve, end, stop, |t| progress(t, end))?;
+            serve_stats = Some(ss);
+            st
+        }
+    };
     let wall = t0.elapsed().as_secs_f64();
     let mut files = Vec::new();
     if opts.log {
@@ -120,7 +142,10 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
     if opts.plots {
         files.extend(write_plots(&opts.out, sil.records(), sil.flow_records())?);
     }
-    let summary = summary_json(opts, &stats, wall, &files);
+    let mut summary = summary_json(opts, &stats, wall, &files);
+    if let Some(ss) = serve_stats {
+        summary["virtual_vehicle"] = serde_json::to_value(ss)?;
+    }
     let path = opts.out.join("summary.json");
     crate::files::write_atomic(&path, (serde_json::to_string_pretty(&summary)? + "\n").as_bytes())?;
     files.push(path);

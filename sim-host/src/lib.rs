@@ -22,7 +22,9 @@ pub mod rng;
 pub mod scenario;
 pub mod sensors;
 pub mod sil;
+pub mod station;
 pub mod sweep;
+pub mod virtual_vehicle;
 pub mod vision;
 pub mod wind;
 

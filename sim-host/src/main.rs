@@ -49,6 +49,10 @@ enum Command {
     /// Fly many seeded runs of a mission with the scenario drawn from distributions (model error, wind,
     /// faults), in parallel and shardable; `sweep merge` joins the shards.
     Sweep(SweepArgs),
+    /// The ground station for a real vehicle, or the virtual one (`fly --serve-link ...`): the cameras'
+    /// streams measured, the measurements stamped on the vehicle's clock and sent up the radio with the
+    /// operator's commands.
+    Station(cli::station::StationArgs),
     /// Print the flight parameters' reference as Markdown (docs/parameters.md): each parameter's dotted name,
     /// type, default, range, unit and description, from their one declaration.
     Params,
@@ -74,6 +78,7 @@ fn main() -> ExitCode {
         Command::Vision(VisionCommand::Pose(a)) => vision_pose(a),
         Command::Vision(VisionCommand::Flow(a)) => vision_flow(a),
         Command::Fly(a) => fly(a),
+        Command::Station(a) => cli::station::station(a),
         Command::Replay(a) => replay(a),
         Command::Export(a) => run_export(a),
         Command::Import(ImportCommand::Euroc(a)) => import_euroc(a),

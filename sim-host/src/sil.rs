@@ -299,6 +299,22 @@ pub struct Sil {
     was_airborne: bool,
     done_at: Option<u64>,
     last_failsafe: Option<control_core::Failsafe>,
+    /// A separate ground station's ports (the virtual vehicle): when set, the cameras' frames and the
+    /// downlink go out through them and no ground station runs in this process.
+    ports: Option<StationPorts>,
+}
+
+/// What a virtual vehicle exposes to a separate ground station, as a real one does: its cameras' frames and
+/// its radio's downlink; the station's uplink comes in through [`Sil::uplink`]. Nothing else of the
+/// simulator crosses.
+#[derive(Default)]
+pub struct StationPorts {
+    /// Forward frames captured since they were last taken: (the vehicle's clock at capture (us), frame).
+    pub forward: VecDeque<(u64, ground_station::stream::Frame)>,
+    /// Downward frames, the same way.
+    pub down: VecDeque<(u64, ground_station::stream::Frame)>,
+    /// Downlink messages the vehicle sent.
+    pub downlink: VecDeque<protocol::Downlink>,
 }
 
 /// The parts of a flight configuration that differ from the firmware's built-in one.
@@ -469,13 +485,37 @@ impl Sil {
                 takeoff_at_s: scenario.mission.takeoff_at_s,
                 track_after_hover_s: scenario.mission.track_after_hover_s,
                 land_when_done: scenario.mission.land_when_done,
+                sweep: true,
             }),
             downlink_queue: VecDeque::new(),
             station_telemetry: None,
             was_airborne: false,
             done_at: None,
             last_failsafe: None,
+            ports: None,
         })
+    }
+
+    /// Serves a separate ground station ([`StationPorts`]): the frames and the downlink leave through the
+    /// ports, the uplink comes through [`Sil::uplink`], and neither the vision nor the operator runs here.
+    /// Rendered cameras only (a station needs images).
+    pub fn serve_station(&mut self) -> Result<()> {
+        if self.mode != CameraMode::Rendered {
+            anyhow::bail!("a separate ground station needs images: fly with --camera rendered");
+        }
+        self.ports = Some(StationPorts::default());
+        Ok(())
+    }
+
+    /// The ports of a separate ground station, when serving one.
+    pub fn ports(&mut self) -> Option<&mut StationPorts> {
+        self.ports.as_mut()
+    }
+
+    /// An uplink message that arrived now from a separate ground station (lost or damaged under the
+    /// scenario's link faults, as the radio would).
+    pub fn uplink(&mut self, msg: Uplink) {
+        self.send(self.t_us, msg);
     }
 
     /// The scenario.
@@ -584,7 +624,21 @@ impl Sil {
                         let mut s = self.seed ^ 0xF0F0_0000_0000_0000 ^ self.frame_index;
                         settings.seed = splitmix64(&mut s);
                         let img = r.render(&r_wc, center, &settings);
-                        let observation = self.stats.ground_no_target.record(self.vision.detect(&img));
+                        let observation = match self.ports.as_mut() {
+                            Some(p) => {
+                                if !self.scenario.faults.iter().any(|f| {
+                                    f.active(self.t_us as f64 * 1e-6)
+                                        && matches!(f.kind, FaultKind::VisionDropout)
+                                }) {
+                                    p.forward.push_back((
+                                        self.t_us,
+                                        station_frame(self.frame_index, &img.data, img.width, img.height, 3),
+                                    ));
+                                }
+                                None
+                            }
+                            None => self.stats.ground_no_target.record(self.vision.detect(&img)),
+                        };
                         if let Some(enc) = self.frame_encoding() {
                             let f = crate::flightlog::CameraFrame::rgb(
                                 self.frame_index as u32,
@@ -639,7 +693,7 @@ impl Sil {
         let deliver = self.t_us + ((lat.latency_s + jitter).max(0.0) * 1e6).round() as u64;
         let msg =
             VisionMeasurement { capture_time_us: self.t_us, frame_seq: self.frame_index as u32, observation };
-        if self.fault_active(|k| matches!(k, FaultKind::VisionDropout)).is_none() {
+        if self.ports.is_none() && self.fault_active(|k| matches!(k, FaultKind::VisionDropout)).is_none() {
             self.send(deliver, Uplink::Vision(msg));
         }
         self.frame_index += 1;
@@ -696,7 +750,16 @@ impl Sil {
                 let mut s = self.seed ^ 0x0D0D_0000_0000_0000 ^ self.down_index;
                 settings.seed = splitmix64(&mut s);
                 let img = r.render(&pose, &settings);
-                let result = fl.add(&img, predicted);
+                let result = match self.ports.as_mut() {
+                    Some(p) => {
+                        p.down.push_back((
+                            self.t_us,
+                            station_frame(self.down_index, &img.data, img.width, img.height, 1),
+                        ));
+                        None
+                    }
+                    None => fl.add(&img, predicted),
+                };
                 if let Some(enc) = self.frame_encoding() {
                     let f = crate::flightlog::CameraFrame::gray(
                         crate::flightlog::CameraId::Downward,
@@ -770,6 +833,10 @@ impl Sil {
     /// The ground station's operator: it sees the vehicle only through the telemetry that came down the
     /// radio, and runs the mission's script ([`ground_station::operator::Operator`], as the station does).
     fn operator(&mut self) {
+        if self.ports.is_some() {
+            // A separate station commands the vehicle.
+            return;
+        }
         while let Some(&(at, d)) = self.downlink_queue.front() {
             if at > self.t_us {
                 break;
@@ -879,6 +946,8 @@ impl Sil {
         for d in downlinks {
             if link_down {
                 self.link_dropped += 1;
+            } else if let Some(p) = self.ports.as_mut() {
+                p.downlink.push_back(d);
             } else {
                 self.downlink_queue.push_back((self.t_us + lat, d));
             }
@@ -1166,6 +1235,24 @@ impl Sil {
         let f = self.flow_err.get();
         self.stats.flow_rms_error_m_s = [f[0], f[1]];
         self.stats.clone()
+    }
+}
+
+/// A frame for a station's stream (no timestamp yet: the camera stamps it when it leaves).
+fn station_frame(
+    seq: u64,
+    data: &[u8],
+    width: usize,
+    height: usize,
+    channels: usize,
+) -> ground_station::stream::Frame {
+    ground_station::stream::Frame {
+        seq: Some(seq),
+        timestamp_us: None,
+        width,
+        height,
+        channels,
+        data: data.to_vec(),
     }
 }
 

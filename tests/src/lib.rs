@@ -135,6 +135,7 @@ pub fn fly_logged(
         fc: sim_host::sil::FcChoice::Sil,
         log: true,
         frames,
+        serve: None,
     };
     if let Err(e) = sim_host::fly::fly(&opts, |_, _| {}) {
         panic!("the flight failed: {e:#}");

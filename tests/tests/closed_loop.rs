@@ -66,6 +66,7 @@ fn without_the_flow_camera_it_still_flies_and_says_so() {
         fc: sim_host::sil::FcChoice::Sil,
         log: false,
         frames: sim_host::flightlog::FramePolicy::Drop,
+        serve: None,
     };
     let r = sim_host::fly::fly(&opts, |_, _| {}).unwrap();
     assert!(!r.stats.flow_camera && r.stats.flow.pairs == 0);

@@ -73,6 +73,19 @@ pub(crate) struct FlyArgs {
     /// `--features fil`, run in qemu-system-arm's netduinoplus2 model, in lockstep over its UART).
     #[arg(long, default_value = "sil", value_name = "sil|qemu:ELF")]
     pub(crate) fc: String,
+    /// Be a virtual vehicle for a separate ground station (`sim-host station`): fly in real time and expose
+    /// only the radio, a byte stream on this TCP port (port 0: any free one, printed on stdout).
+    #[arg(long, value_name = "tcp:HOST:PORT", requires = "serve_forward")]
+    pub(crate) serve_link: Option<String>,
+    /// The virtual vehicle's forward camera: its frame stream on this port (docs/ground-station.md).
+    #[arg(long, value_name = "tcp:HOST:PORT", requires = "serve_link")]
+    pub(crate) serve_forward: Option<String>,
+    /// The virtual vehicle's downward camera (when the scenario's vehicle has one).
+    #[arg(long, value_name = "tcp:HOST:PORT", requires = "serve_link")]
+    pub(crate) serve_down: Option<String>,
+    /// With --serve-link: how long to wait for the station to connect to the radio (s).
+    #[arg(long, default_value_t = 60.0)]
+    pub(crate) connect_timeout: f64,
 }
 pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
     use sim_host::fly::{FlyOptions, fly};
@@ -132,6 +145,12 @@ pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
             FramesArg::Raw => sim_host::flightlog::FramePolicy::Raw,
             FramesArg::None => sim_host::flightlog::FramePolicy::Drop,
         },
+        serve: a.serve_link.as_ref().map(|link| sim_host::virtual_vehicle::ServeOptions {
+            link: link.clone(),
+            forward: a.serve_forward.clone().unwrap_or_default(),
+            down: a.serve_down.clone(),
+            connect_timeout_s: a.connect_timeout,
+        }),
     };
     let bar = progress_bar(1000, "{spinner} flying [{bar:40}] {msg} ({elapsed} elapsed)");
     let result = fly(&opts, |t, end| {

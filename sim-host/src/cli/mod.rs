@@ -5,5 +5,6 @@ pub(crate) mod fly;
 pub(crate) mod import;
 pub(crate) mod render;
 pub(crate) mod replay;
+pub(crate) mod station;
 pub(crate) mod sweep;
 pub(crate) mod vision;

@@ -1,0 +1,97 @@
+//! `sim-host station`: the ground station for a real or a virtual vehicle.
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use sim_host::Scenario;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Args, Debug)]
+pub(crate) struct StationArgs {
+    /// The radio: `serial:DEVICE:BAUD` (a SiK-type radio at 57600, the board's USART at 115200, 8N1) or
+    /// `tcp:HOST:PORT` (the virtual vehicle's `--serve-link`).
+    #[arg(long, value_name = "serial:DEV:BAUD|tcp:HOST:PORT")]
+    pub(crate) link: String,
+    /// The forward camera: `tcp:HOST:PORT`, a frame stream (the virtual vehicle's `--serve-forward`, or a
+    /// camera served the same way; docs/ground-station.md).
+    #[arg(long, value_name = "tcp:HOST:PORT")]
+    pub(crate) forward: String,
+    /// The downward camera's stream, when the vehicle has one (without it the vehicle flies without flow).
+    #[arg(long, value_name = "tcp:HOST:PORT")]
+    pub(crate) down: Option<String>,
+    /// The forward camera's calibration: OpenCV/ROS camera_info YAML or Kalibr/EuRoC sensor.yaml (default:
+    /// the scenario's camera).
+    #[arg(long, value_name = "FILE")]
+    pub(crate) calib_forward: Option<PathBuf>,
+    /// The scenario that gives the line's geometry, the camera mounts and the link's rates.
+    #[arg(long, default_value = "paper")]
+    pub(crate) scenario: String,
+    /// The operator's script: `paper` (arm at 1 s, take off at 2 s, sweep after 2 s of hover, land when
+    /// done), or `hover` (the same without the sweep: land after the hover).
+    #[arg(long, default_value = "paper", value_name = "paper|hover")]
+    pub(crate) script: String,
+    /// The longest run (s).
+    #[arg(long, default_value_t = 300.0)]
+    pub(crate) duration: f64,
+    /// How long to wait for the vehicle's first telemetry (s).
+    #[arg(long, default_value_t = 10.0)]
+    pub(crate) answer_timeout: f64,
+    /// Output directory (station.json: what was sent and received, the clock sync, the latency).
+    #[arg(long)]
+    pub(crate) out: PathBuf,
+}
+
+pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
+    use ground_station::operator::MissionScript;
+    let mut scenario = Scenario::load(&a.scenario)?;
+    let out_file = a.out.join("station.json");
+    let mut inputs = vec![std::path::Path::new(&a.scenario)];
+    inputs.extend(a.calib_forward.as_deref());
+    sim_host::files::refuse_overwrites(&[out_file.as_path()], &inputs)?;
+    if let Some(path) = &a.calib_forward {
+        let cal = ground_station::calib::load(path).map_err(anyhow::Error::msg)?;
+        let c = &mut scenario.forward_camera;
+        let [fx, fy, cx, cy] = cal.intrinsics_px;
+        (c.width_px, c.height_px, c.fx_px, c.fy_px, c.cx_px, c.cy_px) =
+            (cal.camera.width, cal.camera.height, fx, fy, cx, cy);
+        c.distortion = cal.distortion;
+        scenario.validate().with_context(|| format!("the camera of {}", path.display()))?;
+    }
+    let script = match a.script.as_str() {
+        "paper" => MissionScript::PAPER,
+        "hover" => MissionScript::HOVER,
+        other => bail!("--script `{other}`: `paper` or `hover`"),
+    };
+    let link = ground_station::link::LinkSpec::parse(&a.link).map_err(|e| anyhow::anyhow!("--link {e}"))?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+    let opts = sim_host::station::StationOptions {
+        link,
+        forward: a.forward.clone(),
+        down: a.down.clone(),
+        scenario,
+        script,
+        duration_s: a.duration,
+        answer_timeout_s: a.answer_timeout,
+    };
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let bar = super::common::progress_bar(1000, "{spinner} station [{bar:40}] {msg} ({elapsed})");
+    let result = sim_host::station::run_station(&opts, stop, |t, mode| {
+        bar.set_position((t / a.duration * 1000.0).min(1000.0) as u64);
+        bar.set_message(format!("{t:.1} s, vehicle {mode}"));
+    });
+    bar.finish_and_clear();
+    let st = result?;
+    sim_host::files::write_atomic(&out_file, (serde_json::to_string_pretty(&st)? + "\n").as_bytes())?;
+    eprintln!(
+        "{}: {:.1} s; forward frames {} ({} with the line), flow {} sent; clock bound {}; frame to radio median {:.2} ms, p95 {:.2} ms",
+        st.ended,
+        st.seconds,
+        st.forward_frames,
+        st.forward_measured,
+        st.flow_sent,
+        st.clock_bound_ms.map_or("none".to_string(), |b| format!("{b:.3} ms")),
+        st.frame_to_uplink_ms[0],
+        st.frame_to_uplink_ms[1]
+    );
+    eprintln!("wrote:\n  {}", out_file.display());
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,331 @@
+//! `sim-host station`: the ground station for a real vehicle (or the virtual one, `sim-host fly
+//! --serve-link ...`). It reads the cameras' frame streams, measures the line and the flow with the same
+//! code as the simulator's station, stamps the measurements on the vehicle's clock (clock sync over the
+//! radio), runs the operator's script against the mode the telemetry reports, and sends all of it up the
+//! radio. It knows the vehicle only through the radio.
+use crate::downward::GroundFlow;
+use crate::imageio::{GrayImage, RgbImage};
+use crate::scenario::Scenario;
+use crate::vision::GroundVision;
+use anyhow::{Context, Result, bail};
+use control_core::FlightMode;
+use ground_station::clock::ClockSync;
+use ground_station::link::{Link, LinkSpec};
+use ground_station::operator::{MissionScript, Operator};
+use ground_station::stream::{Frame, StreamReader};
+use protocol::{Downlink, FlowMeasurement, Telemetry, Uplink, VisionMeasurement};
+use std::io::ErrorKind;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, mpsc};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+/// Time-sync requests per second.
+pub const TIME_SYNC_HZ: f64 = 10.0;
+
+/// What the station is to do.
+#[derive(Clone, Debug)]
+pub struct StationOptions {
+    /// The radio.
+    pub link: LinkSpec,
+    /// The forward camera's stream (`tcp:HOST:PORT`).
+    pub forward: String,
+    /// The downward camera's stream, if any.
+    pub down: Option<String>,
+    /// The line, the cameras (unless calibrations replace them) and the link's rates.
+    pub scenario: Scenario,
+    /// The operator's script.
+    pub script: MissionScript,
+    /// The longest run (s).
+    pub duration_s: f64,
+    /// How long to wait for the first telemetry (s).
+    pub answer_timeout_s: f64,
+}
+
+/// What the station counted.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct StationStats {
+    /// Seconds the station ran.
+    pub seconds: f64,
+    /// Forward frames received, measured (the line found), without a line, and dropped before the clock was
+    /// known.
+    pub forward_frames: u64,
+    /// Forward frames in which the line was found.
+    pub forward_measured: u64,
+    /// Forward frames that arrived before the vehicle's clock was known (not sent).
+    pub frames_before_clock: u64,
+    /// Downward frames received.
+    pub down_frames: u64,
+    /// Flow measurements sent.
+    pub flow_sent: u64,
+    /// Uplink messages sent, by kind.
+    pub uplink_vision: u64,
+    /// Flow messages.
+    pub uplink_flow: u64,
+    /// Commands (with retries).
+    pub uplink_commands: u64,
+    /// Heartbeats and time-sync requests.
+    pub uplink_other: u64,
+    /// Telemetry messages received.
+    pub telemetry: u64,
+    /// Command acknowledgements received, with the refusals' reasons.
+    pub command_acks: Vec<String>,
+    /// Time-sync answers received.
+    pub time_sync_answers: u64,
+    /// The clock sync's error bound at the end (ms).
+    pub clock_bound_ms: Option<f64>,
+    /// The vehicle's modes as the telemetry reported them, with the station's time (s).
+    pub modes: Vec<(f64, String)>,
+    /// Bytes sent and received on the radio.
+    pub link_bytes: [u64; 2],
+    /// The radio's decoder: frames refused by reason.
+    pub link_decoder: protocol::frame::DecodeCounters,
+    /// Median and 95th percentile of the time from a forward frame's arrival to its measurement leaving on
+    /// the radio (ms).
+    pub frame_to_uplink_ms: [f64; 2],
+    /// Why the station stopped.
+    pub ended: String,
+}
+
+fn now_unix_us() -> u64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_micros() as u64)
+}
+
+/// A camera stream read on its own thread: frames with their arrival time; the error that ended it.
+fn camera_thread(spec: &str, what: &'static str) -> Result<mpsc::Receiver<Result<(Frame, u64), String>>> {
+    let addr = crate::virtual_vehicle::tcp_address(spec).with_context(|| format!("--{what}"))?;
+    let mut reader = StreamReader::connect(&addr)
+        .map_err(|e| anyhow::anyhow!("--{what}: the camera stream at {addr}: {e}"))?;
+    let (tx, rx) = mpsc::sync_channel(8);
+    std::thread::spawn(move || {
+        loop {
+            match reader.next_frame() {
+                Ok(Some(f)) => {
+                    if tx.send(Ok((f, now_unix_us()))).is_err() {
+                        return;
+                    }
+                }
+                Ok(None) => {
+                    let _closed = tx.send(Err(format!("the {what} stream ended")));
+                    return;
+                }
+                Err(e) => {
+                    let _closed = tx.send(Err(format!("the {what} stream: {e}")));
+                    return;
+                }
+            }
+        }
+    });
+    Ok(rx)
+}
+
+/// Runs the station until the vehicle has landed and disarmed after flying, the duration ran out, `stop`
+/// is set, or the vehicle went away.
+pub fn run_station(
+    opts: &StationOptions,
+    stop: Arc<AtomicBool>,
+    mut progress: impl FnMut(f64, &str),
+) -> Result<StationStats> {
+    let scenario = &opts.scenario;
+    let Link { mut reader, mut writer } = ground_station::link::open(&opts.link, Duration::from_millis(1))
+        .map_err(|e| anyhow::anyhow!("--link: {e}"))?;
+    // The radio's bytes are read on their own thread (a serial read blocks up to its timeout).
+    let (down_tx, down_rx) = mpsc::channel::<(Downlink, u64)>();
+    let decoder_counts = Arc::new(std::sync::Mutex::new((protocol::frame::DecodeCounters::default(), 0u64)));
+    let counts2 = decoder_counts.clone();
+    let stop2 = stop.clone();
+    let link_reader = std::thread::spawn(move || -> Option<String> {
+        let mut dec = protocol::frame::Decoder::new();
+        let mut buf = [0u8; 4096];
+        while !stop2.load(Ordering::Relaxed) {
+            match reader.read(&mut buf) {
+                Ok(0) => continue,
+                Ok(n) => {
+                    let t = now_unix_us();
+                    for &b in &buf[..n] {
+                        if let Some(Ok(m)) = dec.push::<Downlink>(b)
+                            && down_tx.send((m, t)).is_err()
+                        {
+                            return None;
+                        }
+                    }
+                    if let Ok(mut c) = counts2.lock() {
+                        *c = (dec.counters(), c.1 + n as u64);
+                    }
+                }
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        ErrorKind::WouldBlock | ErrorKind::TimedOut | ErrorKind::Interrupted
+                    ) => {}
+                Err(e) => return Some(format!("the radio: {e}")),
+            }
+        }
+        None
+    });
+    let forward = camera_thread(&opts.forward, "forward")?;
+    let down = opts.down.as_deref().map(|d| camera_thread(d, "down")).transpose()?;
+
+    let mut vision = GroundVision::new(scenario);
+    let mut flow = down.as_ref().map(|_| GroundFlow::new(scenario));
+    let mut clock = ClockSync::default().with_answer_period((1e6 / scenario.mission.control_rate_hz) as u64);
+    let mut operator = Operator::new(opts.script);
+    let mut stats = StationStats::default();
+    let mut telemetry: Option<Telemetry> = None;
+    let mut was_airborne = false;
+    let mut latencies_us: Vec<u64> = Vec::new();
+    let mut out = [0u8; protocol::frame::MAX_FRAME];
+    let mut sent_bytes = 0u64;
+    let mut send = |m: &Uplink, w: &mut Box<dyn std::io::Write + Send>| -> Result<()> {
+        let bytes =
+            protocol::frame::encode(m, &mut out).map_err(|e| anyhow::anyhow!("encoding {m:?}: {e:?}"))?;
+        w.write_all(bytes).context("the radio")?;
+        w.flush().context("the radio")?;
+        sent_bytes += bytes.len() as u64;
+        Ok(())
+    };
+    let start = Instant::now();
+    let start_us = now_unix_us();
+    let mut next_sync = 0.0;
+    let mut next_heartbeat = 0.0;
+    let mut prev_down: Option<(u64, u32)> = None;
+    let mut last_progress = -1.0;
+    let ended = loop {
+        let t = start.elapsed().as_secs_f64();
+        if stop.load(Ordering::Relaxed) {
+            break "stopped".to_string();
+        }
+        if t > opts.duration_s {
+            break format!("the duration ({} s) ran out", opts.duration_s);
+        }
+        if telemetry.is_none() && t > opts.answer_timeout_s {
+            bail!(
+                "the vehicle did not answer on the radio within {} s (no telemetry)",
+                opts.answer_timeout_s
+            );
+        }
+        // What came down.
+        while let Ok((m, at)) = down_rx.try_recv() {
+            match m {
+                Downlink::Telemetry(tm) => {
+                    stats.telemetry += 1;
+                    let mode = format!("{:?}", tm.mode);
+                    if stats.modes.last().is_none_or(|(_, m)| *m != mode) {
+                        stats.modes.push((t, mode));
+                    }
+                    was_airborne |= tm.mode.airborne();
+                    telemetry = Some(tm);
+                }
+                Downlink::TimeSync { station_time_us, vehicle_time_us } => {
+                    stats.time_sync_answers += 1;
+                    // A refused exchange is counted by the clock sync itself.
+                    let _refusal_counted = clock.observe(station_time_us, vehicle_time_us, at);
+                }
+                Downlink::CommandAck(r) => stats.command_acks.push(format!("{t:.2} s: {r:?}")),
+                Downlink::Param(_) => {}
+            }
+        }
+        if link_reader.is_finished() {
+            break "the radio closed".to_string();
+        }
+        if was_airborne && telemetry.is_some_and(|tm| tm.mode == FlightMode::Disarmed) {
+            break "the vehicle landed and disarmed".to_string();
+        }
+        // Up: time sync, heartbeat, the operator.
+        if t >= next_sync {
+            send(&Uplink::TimeSync { station_time_us: now_unix_us() }, &mut writer)?;
+            stats.uplink_other += 1;
+            next_sync += 1.0 / TIME_SYNC_HZ;
+        }
+        if t >= next_heartbeat {
+            send(&Uplink::Heartbeat, &mut writer)?;
+            stats.uplink_other += 1;
+            next_heartbeat += 1.0 / scenario.link.heartbeat_hz;
+        }
+        if let Some(c) = operator.tick(now_unix_us() - start_us, telemetry.map(|tm| tm.mode)) {
+            send(&Uplink::Command(c), &mut writer)?;
+            stats.uplink_commands += 1;
+        }
+        // The cameras.
+        let mut idle = true;
+        while let Ok(r) = forward.try_recv() {
+            idle = false;
+            let (f, arrived) = r.map_err(anyhow::Error::msg)?;
+            stats.forward_frames += 1;
+            let stamp = f.timestamp_us.unwrap_or(arrived);
+            let Some(vehicle_us) = clock.vehicle_time_us(stamp) else {
+                stats.frames_before_clock += 1;
+                continue;
+            };
+            if f.channels != 3 {
+                bail!("the forward stream sent a {}-channel frame; RGB expected", f.channels);
+            }
+            let img = RgbImage { width: f.width, height: f.height, data: f.data };
+            let observation = vision.detect(&img).ok();
+            stats.forward_measured += observation.is_some() as u64;
+            let m = VisionMeasurement {
+                capture_time_us: vehicle_us,
+                frame_seq: f.seq.unwrap_or(stats.forward_frames) as u32,
+                observation,
+            };
+            send(&Uplink::Vision(m), &mut writer)?;
+            stats.uplink_vision += 1;
+            latencies_us.push(now_unix_us().saturating_sub(arrived));
+        }
+        if let (Some(rx), Some(fl)) = (down.as_ref(), flow.as_mut()) {
+            while let Ok(r) = rx.try_recv() {
+                idle = false;
+                let (f, arrived) = r.map_err(anyhow::Error::msg)?;
+                stats.down_frames += 1;
+                let Some(vehicle_us) = clock.vehicle_time_us(f.timestamp_us.unwrap_or(arrived)) else {
+                    continue;
+                };
+                if f.channels != 1 {
+                    bail!("the down stream sent a {}-channel frame; grey expected", f.channels);
+                }
+                let seq = f.seq.unwrap_or(stats.down_frames) as u32;
+                let img = GrayImage { width: f.width, height: f.height, data: f.data };
+                // The rotation over the interval from the last telemetry's rates (what came down the radio).
+                let dt = prev_down.map_or(0.0, |(t0, _)| vehicle_us.saturating_sub(t0) as f32 * 1e-6);
+                let rates = telemetry.map_or(geometry::Vec3::ZERO, |tm| tm.estimate.rates_rad_s);
+                let r_bc = scenario.down_camera_mount().body_from_camera;
+                let predicted = r_bc.transpose().mul_vec(rates * dt);
+                if let (Some(result), Some((t_prev, _))) = (fl.add(&img, predicted), prev_down) {
+                    let m =
+                        FlowMeasurement { t_prev_us: t_prev, t_next_us: vehicle_us, frame_seq: seq, result };
+                    send(&Uplink::Flow(m), &mut writer)?;
+                    stats.uplink_flow += 1;
+                    stats.flow_sent += 1;
+                }
+                prev_down = Some((vehicle_us, seq));
+            }
+        }
+        if t - last_progress >= 0.1 {
+            last_progress = t;
+            let mode = telemetry.map_or("no telemetry yet".to_string(), |tm| format!("{:?}", tm.mode));
+            progress(t, &mode);
+        }
+        if idle {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    };
+    stop.store(true, Ordering::Relaxed);
+    let reader_error = link_reader.join().ok().flatten();
+    stats.seconds = start.elapsed().as_secs_f64();
+    stats.ended = match reader_error {
+        Some(e) => format!("{ended} ({e})"),
+        None => ended,
+    };
+    stats.clock_bound_ms = clock.bound_us().map(|b| b * 1e-3);
+    if let Ok(c) = decoder_counts.lock() {
+        stats.link_decoder = c.0;
+        stats.link_bytes = [sent_bytes, c.1];
+    }
+    latencies_us.sort_unstable();
+    let q = |p: f64| {
+        latencies_us
+            .get(((latencies_us.len() as f64 - 1.0) * p).round() as usize)
+            .map_or(f64::NAN, |v| *v as f64 * 1e-3)
+    };
+    stats.frame_to_uplink_ms = [q(0.5), q(0.95)];
+    Ok(stats)
+}

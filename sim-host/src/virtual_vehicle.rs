@@ -1,0 +1,306 @@
+//! The virtual vehicle: the simulated vehicle with the flight code on board, in real time, exposing only what
+//! a real one exposes to its ground station: the radio (the protocol's byte stream on a TCP port) and its two
+//! cameras' frame streams (`ground_station::stream`, on their own ports). No simulator state crosses.
+//!
+//! The cameras stamp each frame with the machine's clock when it leaves (`X-Timestamp-Us`, us since the Unix
+//! epoch), as a webcam's driver stamps its buffers with the station's clock; the station maps those times to
+//! the vehicle's clock with its clock sync, as it must with a real vehicle.
+use crate::sil::{RunStats, Sil};
+use anyhow::{Context, Result, bail};
+use ground_station::stream::{Frame, PartEncoding, StreamWriter};
+use protocol::{Downlink, Uplink};
+use std::io::{ErrorKind, Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, mpsc};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+/// Where the virtual vehicle listens.
+#[derive(Clone, Debug)]
+pub struct ServeOptions {
+    /// The radio: `tcp:HOST:PORT` (port 0: any free port, printed).
+    pub link: String,
+    /// The forward camera's stream: `tcp:HOST:PORT`.
+    pub forward: String,
+    /// The downward camera's stream, when the vehicle has one.
+    pub down: Option<String>,
+    /// How long to wait for the station's radio to connect (s).
+    pub connect_timeout_s: f64,
+}
+
+/// What the serving counted.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct ServeStats {
+    /// Uplink messages decoded from the station.
+    pub uplink_messages: u64,
+    /// Uplink frames the decoder refused (damaged, unknown version, ...).
+    pub uplink_refused: u64,
+    /// Downlink messages sent.
+    pub downlink_messages: u64,
+    /// Frames each camera sent to its client (forward, down).
+    pub frames_sent: [u64; 2],
+    /// Frames each camera dropped: no client yet, or the client did not keep up (forward, down).
+    pub frames_dropped: [u64; 2],
+    /// How far the simulation fell behind the wall clock at worst (s).
+    pub max_lag_s: f64,
+}
+
+/// `tcp:HOST:PORT` to `HOST:PORT`.
+pub fn tcp_address(spec: &str) -> Result<String> {
+    let addr = spec
+        .strip_prefix("tcp:")
+        .with_context(|| format!("`{spec}`: tcp:HOST:PORT expected (e.g. tcp:127.0.0.1:5760)"))?;
+    if addr.rsplit_once(':').is_none_or(|(h, p)| h.is_empty() || p.parse::<u16>().is_err()) {
+        bail!("`{spec}`: tcp:HOST:PORT expected (e.g. tcp:127.0.0.1:5760)");
+    }
+    Ok(addr.to_string())
+}
+
+fn now_unix_us() -> u64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_micros() as u64)
+}
+
+/// A camera's server: the first client to connect gets the stream (raw parts: no encoding on loopback);
+/// frames with no client, or that the client does not take in time, are dropped and counted.
+struct CameraServer {
+    tx: mpsc::SyncSender<Frame>,
+    sent: Arc<AtomicU64>,
+    dropped: u64,
+    connected: Arc<AtomicBool>,
+}
+
+impl CameraServer {
+    fn start(listener: TcpListener, stop: Arc<AtomicBool>) -> Self {
+        let (tx, rx) = mpsc::sync_channel::<Frame>(4);
+        let sent = Arc::new(AtomicU64::new(0));
+        let connected = Arc::new(AtomicBool::new(false));
+        let (sent2, conn2) = (sent.clone(), connected.clone());
+        std::thread::spawn(move || {
+            listener.set_nonblocking(true).ok();
+            let client = loop {
+                if stop.load(Ordering::Relaxed) {
+                    return;
+                }
+                match listener.accept() {
+                    Ok((s, _)) => break s,
+                    Err(e) if e.kind() == ErrorKind::WouldBlock => {
+                        // Frames keep coming while nobody watches: drop them.
+                        while rx.try_recv().is_ok() {}
+                        std::thread::sleep(Duration::from_millis(5));
+                    }
+                    Err(_) => return,
+                }
+            };
+            client.set_nonblocking(false).ok();
+            client.set_nodelay(true).ok();
+            // The client's request (one line and a blank one); its content does not matter.
+            let mut req = [0u8; 1024];
+            client.set_read_timeout(Some(Duration::from_secs(2))).ok();
+            if (&client).read(&mut req).is_err() {
+                // No request within the timeout: serve the stream anyway (a client that only listens).
+            }
+            let Ok(mut w) = StreamWriter::start(client, PartEncoding::Raw) else { return };
+            conn2.store(true, Ordering::Relaxed);
+            while let Ok(f) = rx.recv() {
+                if w.write(&f).is_err() {
+                    break;
+                }
+                sent2.fetch_add(1, Ordering::Relaxed);
+            }
+            conn2.store(false, Ordering::Relaxed);
+        });
+        Self { tx, sent, dropped: 0, connected }
+    }
+
+    fn send(&mut self, mut f: Frame) {
+        if !self.connected.load(Ordering::Relaxed) {
+            self.dropped += 1;
+            return;
+        }
+        f.timestamp_us = Some(now_unix_us());
+        if self.tx.try_send(f).is_err() {
+            self.dropped += 1;
+        }
+    }
+}
+
+/// The bound ports (printed by `sim-host fly --serve-*` so that a client asking for port 0 finds them).
+pub struct Bound {
+    link: TcpListener,
+    forward: TcpListener,
+    down: Option<TcpListener>,
+}
+
+impl Bound {
+    /// Binds the ports.
+    pub fn bind(opts: &ServeOptions) -> Result<Self> {
+        let bind = |spec: &str, what: &str| -> Result<TcpListener> {
+            let addr = tcp_address(spec)?;
+            TcpListener::bind(&addr).with_context(|| format!("{what}: cannot listen on {addr}"))
+        };
+        Ok(Self {
+            link: bind(&opts.link, "--serve-link")?,
+            forward: bind(&opts.forward, "--serve-forward")?,
+            down: opts.down.as_deref().map(|d| bind(d, "--serve-down")).transpose()?,
+        })
+    }
+
+    /// The addresses (link, forward, down).
+    pub fn addresses(&self) -> (String, String, Option<String>) {
+        let a = |l: &TcpListener| l.local_addr().map_or_else(|e| e.to_string(), |a| a.to_string());
+        (a(&self.link), a(&self.forward), self.down.as_ref().map(a))
+    }
+}
+
+/// Flies `sil` in real time for at most `duration_s` against a station that connects to the ports: waits
+/// for the radio's connection, then runs until the vehicle has landed and disarmed, crashed, the duration
+/// ran out, `stop` is set (Ctrl-C), or the station hung up after the vehicle disarmed.
+pub fn serve(
+    sil: &mut Sil,
+    bound: Bound,
+    opts: &ServeOptions,
+    duration_s: f64,
+    stop: Arc<AtomicBool>,
+    mut progress: impl FnMut(f64),
+) -> Result<(RunStats, ServeStats)> {
+    sil.serve_station()?;
+    let mut stats = ServeStats::default();
+    let mut forward = CameraServer::start(bound.forward, stop.clone());
+    let mut down = bound.down.map(|l| CameraServer::start(l, stop.clone()));
+    if sil.scenario().down_camera.enabled && down.is_none() {
+        bail!("the scenario's vehicle has a downward camera: give --serve-down tcp:HOST:PORT");
+    }
+    // The station's radio.
+    bound.link.set_nonblocking(true)?;
+    let wait_until = Instant::now() + Duration::from_secs_f64(opts.connect_timeout_s);
+    let mut link: TcpStream = loop {
+        match bound.link.accept() {
+            Ok((s, _)) => break s,
+            Err(e) if e.kind() == ErrorKind::WouldBlock => {
+                if stop.load(Ordering::Relaxed) {
+                    bail!("stopped before a ground station connected");
+                }
+                if Instant::now() > wait_until {
+                    bail!(
+                        "no ground station connected to the radio port within {} s",
+                        opts.connect_timeout_s
+                    );
+                }
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            Err(e) => return Err(e).context("accepting the radio's connection"),
+        }
+    };
+    link.set_nonblocking(true)?;
+    link.set_nodelay(true)?;
+    let mut decoder = protocol::frame::Decoder::new();
+    let mut buf = [0u8; 4096];
+    let mut out = [0u8; protocol::frame::MAX_FRAME];
+    let end_us = (duration_s * 1e6).round() as u64;
+    let start = Instant::now();
+    let mut station_gone = false;
+    let mut last_progress = 0.0;
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            break;
+        }
+        // The uplink that arrived.
+        if !station_gone {
+            loop {
+                match link.read(&mut buf) {
+                    Ok(0) => {
+                        station_gone = true;
+                        break;
+                    }
+                    Ok(n) => {
+                        for &b in &buf[..n] {
+                            match decoder.push::<Uplink>(b) {
+                                Some(Ok(m)) => {
+                                    stats.uplink_messages += 1;
+                                    sil.uplink(m);
+                                }
+                                Some(Err(_)) => stats.uplink_refused += 1,
+                                None => {}
+                            }
+                        }
+                    }
+                    Err(e) if e.kind() == ErrorKind::WouldBlock => break,
+                    Err(_) => {
+                        station_gone = true;
+                        break;
+                    }
+                }
+            }
+        }
+        // Simulate up to the wall clock (a control period at a time, at most).
+        let wall_us = start.elapsed().as_micros() as u64;
+        let mut running = true;
+        let mut n = 0;
+        while running && (sil.time_s() * 1e6) as u64 <= wall_us && n < 50 {
+            running = sil.step(end_us);
+            n += 1;
+        }
+        let lag = wall_us as f64 * 1e-6 - sil.time_s();
+        stats.max_lag_s = stats.max_lag_s.max(lag);
+        // What the vehicle exposes.
+        if let Some(p) = sil.ports() {
+            let frames: Vec<Frame> = p.forward.drain(..).map(|(_, f)| f).collect();
+            let down_frames: Vec<Frame> = p.down.drain(..).map(|(_, f)| f).collect();
+            let downlink: Vec<Downlink> = p.downlink.drain(..).collect();
+            for f in frames {
+                forward.send(f);
+            }
+            if let Some(d) = down.as_mut() {
+                for f in down_frames {
+                    d.send(f);
+                }
+            }
+            if !station_gone {
+                for m in downlink {
+                    if let Ok(bytes) = protocol::frame::encode(&m, &mut out) {
+                        // A radio drops what it cannot send; the socket is local and never full in practice.
+                        match write_all_nonblocking(&mut link, bytes) {
+                            Ok(()) => stats.downlink_messages += 1,
+                            Err(_) => station_gone = true,
+                        }
+                    }
+                }
+            }
+        }
+        if sil.time_s() - last_progress >= 0.1 {
+            last_progress = sil.time_s();
+            progress(sil.time_s());
+        }
+        if !running {
+            break;
+        }
+        let ahead = sil.time_s() - start.elapsed().as_secs_f64();
+        if ahead > 0.0 {
+            std::thread::sleep(Duration::from_secs_f64(ahead.min(0.002)));
+        }
+    }
+    stop.store(true, Ordering::Relaxed);
+    stats.frames_sent =
+        [forward.sent.load(Ordering::Relaxed), down.as_ref().map_or(0, |d| d.sent.load(Ordering::Relaxed))];
+    stats.frames_dropped = [forward.dropped, down.as_ref().map_or(0, |d| d.dropped)];
+    if link.flush().is_err() {
+        // The station hung up; what it did not take is counted in neither direction's messages.
+    }
+    Ok((sil.finish(), stats))
+}
+
+/// Writes all of `bytes` to a non-blocking socket, waiting briefly while it is full.
+fn write_all_nonblocking(s: &mut TcpStream, mut bytes: &[u8]) -> std::io::Result<()> {
+    let deadline = Instant::now() + Duration::from_millis(200);
+    while !bytes.is_empty() {
+        match s.write(bytes) {
+            Ok(0) => return Err(ErrorKind::WriteZero.into()),
+            Ok(n) => bytes = &bytes[n..],
+            Err(e) if e.kind() == ErrorKind::WouldBlock && Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_micros(200))
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,143 @@
+//! End to end: the virtual vehicle (`sim-host fly --serve-link ...`) and the ground station (`sim-host
+//! station`) as two processes connected only by the radio's byte stream and the two cameras' frame streams
+//! (rendered), flying the short mission (arm, take off, hover, land) in real time from arm to disarm. Ports
+//! are chosen by the vehicle (port 0) and read from its stdout; both processes are killed if the test fails.
+use serde_json::Value;
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+struct Killed(Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        if self.0.try_wait().ok().flatten().is_none() {
+            self.0.kill().ok();
+            self.0.wait().ok();
+        }
+    }
+}
+
+fn wait(child: &mut Killed, limit: Duration, what: &str) -> std::process::ExitStatus {
+    let end = Instant::now() + limit;
+    loop {
+        if let Some(s) = child.0.try_wait().expect("waiting") {
+            return s;
+        }
+        assert!(Instant::now() < end, "{what} did not end within {limit:?}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn read_json(p: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
+        .unwrap()
+}
+
+#[test]
+fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
+    let dir = std::env::temp_dir().join(format!("station-e2e-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let exe = env!("CARGO_BIN_EXE_sim-host");
+    let mut vehicle = Killed(
+        Command::new(exe)
+            .args(["fly", "--serve-link", "tcp:127.0.0.1:0", "--serve-forward", "tcp:127.0.0.1:0"])
+            .args(["--serve-down", "tcp:127.0.0.1:0", "--no-plots", "--duration", "40", "--seed", "2"])
+            .args(["--connect-timeout", "30"])
+            .arg("--out")
+            .arg(dir.join("vehicle"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("starting the virtual vehicle"),
+    );
+    // The ports it chose.
+    let mut ports = std::collections::HashMap::new();
+    let mut lines = BufReader::new(vehicle.0.stdout.take().unwrap()).lines();
+    while ports.len() < 3 {
+        let line = lines.next().expect("the vehicle printed its ports").unwrap();
+        let mut w = line.split_whitespace();
+        if let (Some("serving"), Some(k), Some(v)) = (w.next(), w.next(), w.next()) {
+            ports.insert(k.to_string(), v.to_string());
+        }
+    }
+    let mut station = Killed(
+        Command::new(exe)
+            .args([
+                "station",
+                "--link",
+                &ports["link"],
+                "--forward",
+                &ports["forward"],
+                "--down",
+                &ports["down"],
+            ])
+            .args(["--script", "hover", "--duration", "40"])
+            .arg("--out")
+            .arg(dir.join("station"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("starting the station"),
+    );
+    let st = wait(&mut station, Duration::from_secs(60), "the station");
+    let vs = wait(&mut vehicle, Duration::from_secs(30), "the virtual vehicle");
+    assert!(st.success() && vs.success(), "station {st}, vehicle {vs}");
+
+    let v = read_json(&dir.join("vehicle").join("summary.json"));
+    let s = read_json(&dir.join("station").join("station.json"));
+    eprintln!("vehicle: {}\nstation: {}", v["virtual_vehicle"], s);
+    // The vehicle flew the mission the station commanded and ended on the floor, disarmed.
+    assert_eq!(v["landed"], true, "{v}");
+    assert_eq!(v["crashed"], false);
+    let modes: Vec<&str> =
+        v["modes"].as_array().unwrap().iter().map(|m| m["mode"].as_str().unwrap()).collect();
+    assert_eq!(modes.first(), Some(&"Disarmed"));
+    assert_eq!(modes.last(), Some(&"Disarmed"));
+    for m in ["Armed", "TakeOff", "Hover", "Landing"] {
+        assert!(modes.contains(&m), "{m} missing from {modes:?}");
+    }
+    assert_eq!(s["ended"], "the vehicle landed and disarmed");
+    // It flew on the station's measurements: vision fixes and flow fused, timestamped on its clock.
+    let acc = &v["estimator"]["accepted"];
+    assert!(acc["vision_fixes"].as_u64().unwrap() > 100, "{acc}");
+    assert!(acc["flow"].as_u64().unwrap() > 100, "{acc}");
+    assert_eq!(v["estimator"]["rejected"]["vision_stale"], 0);
+    assert!(s["forward_measured"].as_u64().unwrap() > 100 && s["flow_sent"].as_u64().unwrap() > 100, "{s}");
+    // The clock sync knew the vehicle's clock (loopback: well within a millisecond).
+    assert!(s["clock_bound_ms"].as_f64().unwrap() < 5.0, "{s}");
+    assert!(
+        s["command_acks"].as_array().unwrap().iter().any(|a| a.as_str().unwrap().contains("Accepted(Land)"))
+    );
+    // Nothing was refused on either side of the radio.
+    assert_eq!(v["virtual_vehicle"]["uplink_refused"], 0);
+    assert_eq!(s["link_decoder"]["bad_crc"], 0);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn a_station_without_a_vehicle_says_so() {
+    let dir = std::env::temp_dir().join(format!("station-none-{}", std::process::id()));
+    // A port nobody listens on: bind one, note it, free it.
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args(["station", "--link", &format!("tcp:127.0.0.1:{port}"), "--forward", "tcp:127.0.0.1:1"])
+        .arg("--out")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("--link") && err.contains(&port.to_string()), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args(["station", "--link", "serial:/dev/nonexistent-radio:57600", "--forward", "tcp:127.0.0.1:1"])
+        .arg("--out")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("/dev/nonexistent-radio"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}
