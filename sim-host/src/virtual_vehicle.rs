@@ -2,7 +2,7 @@
 //! a real one exposes to its ground station: the radio (the protocol's byte stream on a TCP port) and its two
 //! cameras' frame streams (`ground_station::stream`, on their own ports). No simulator state crosses.
 //!
-//! The cameras stamp each frame with the machine's clock when it leaves (`X-Timestamp-Us`, us since the Unix
+//! The cameras stamp each frame with the machine's clock at its capture (`X-Timestamp-Us`, us since the Unix
 //! epoch), as a webcam's driver stamps its buffers with the station's clock; the station maps those times to
 //! the vehicle's clock with its clock sync, as it must with a real vehicle.
 use crate::sil::{RunStats, Sil};
@@ -112,12 +112,13 @@ impl CameraServer {
         Self { tx, sent, dropped: 0, connected }
     }
 
-    fn send(&mut self, mut f: Frame) {
+    /// Sends a frame captured at the machine's `captured_unix_us`.
+    fn send(&mut self, mut f: Frame, captured_unix_us: u64) {
         if !self.connected.load(Ordering::Relaxed) {
             self.dropped += 1;
             return;
         }
-        f.timestamp_us = Some(now_unix_us());
+        f.timestamp_us = Some(captured_unix_us);
         if self.tx.try_send(f).is_err() {
             self.dropped += 1;
         }
@@ -198,6 +199,9 @@ pub fn serve(
     let mut out = [0u8; protocol::frame::MAX_FRAME];
     let end_us = (duration_s * 1e6).round() as u64;
     let start = Instant::now();
+    // The simulation is paced by the wall clock from here: a frame captured at the vehicle's time t was
+    // captured at the machine's `start_unix_us + t` (a camera stamps its exposure, not its sending).
+    let start_unix_us = now_unix_us();
     let mut station_gone = false;
     let mut last_progress = 0.0;
     loop {
@@ -244,15 +248,15 @@ pub fn serve(
         stats.max_lag_s = stats.max_lag_s.max(lag);
         // What the vehicle exposes.
         if let Some(p) = sil.ports() {
-            let frames: Vec<Frame> = p.forward.drain(..).map(|(_, f)| f).collect();
-            let down_frames: Vec<Frame> = p.down.drain(..).map(|(_, f)| f).collect();
+            let frames: Vec<(u64, Frame)> = p.forward.drain(..).collect();
+            let down_frames: Vec<(u64, Frame)> = p.down.drain(..).collect();
             let downlink: Vec<Downlink> = p.downlink.drain(..).collect();
-            for f in frames {
-                forward.send(f);
+            for (t_us, f) in frames {
+                forward.send(f, start_unix_us + t_us);
             }
             if let Some(d) = down.as_mut() {
-                for f in down_frames {
-                    d.send(f);
+                for (t_us, f) in down_frames {
+                    d.send(f, start_unix_us + t_us);
                 }
             }
             if !station_gone {

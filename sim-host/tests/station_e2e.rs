@@ -104,6 +104,11 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
     assert!(acc["vision_fixes"].as_u64().unwrap() > 100, "{acc}");
     assert!(acc["flow"].as_u64().unwrap() > 100, "{acc}");
     assert_eq!(v["estimator"]["rejected"]["vision_stale"], 0);
+    // Frames stamped at their capture: the flight code finds their attitude (stamped when they left, a few ms
+    // late, most were dropped: 296 of 1619 on the paper mission, 9 after).
+    let (solved, rejected) =
+        (v["vision"]["solved"].as_u64().unwrap(), v["vision"]["rejected"].as_u64().unwrap());
+    assert!(rejected * 20 < solved, "{}", v["vision"]);
     assert!(s["forward_measured"].as_u64().unwrap() > 100 && s["flow_sent"].as_u64().unwrap() > 100, "{s}");
     // The clock sync knew the vehicle's clock (loopback: well within a millisecond).
     assert!(s["clock_bound_ms"].as_f64().unwrap() < 5.0, "{s}");
