@@ -9,5 +9,6 @@ pub mod calib;
 pub mod clock;
 pub mod link;
 pub mod operator;
+pub mod source;
 pub mod stream;
 pub mod vision;

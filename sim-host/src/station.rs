@@ -12,7 +12,7 @@ use control_core::FlightMode;
 use ground_station::clock::ClockSync;
 use ground_station::link::{Link, LinkSpec};
 use ground_station::operator::{MissionScript, Operator};
-use ground_station::stream::{Frame, StreamReader};
+use ground_station::stream::Frame;
 use protocol::{Downlink, FlowMeasurement, Telemetry, Uplink, VisionMeasurement};
 use std::io::ErrorKind;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -27,7 +27,7 @@ pub const TIME_SYNC_HZ: f64 = 10.0;
 pub struct StationOptions {
     /// The radio.
     pub link: LinkSpec,
-    /// The forward camera's stream (`tcp:HOST:PORT`).
+    /// The forward camera (`ground_station::source::open`: `tcp:HOST:PORT`, `folder:PATH`).
     pub forward: String,
     /// The downward camera's stream, if any.
     pub down: Option<String>,
@@ -92,9 +92,7 @@ fn now_unix_us() -> u64 {
 
 /// A camera stream read on its own thread: frames with their arrival time; the error that ended it.
 fn camera_thread(spec: &str, what: &'static str) -> Result<mpsc::Receiver<Result<(Frame, u64), String>>> {
-    let addr = crate::virtual_vehicle::tcp_address(spec).with_context(|| format!("--{what}"))?;
-    let mut reader = StreamReader::connect(&addr)
-        .map_err(|e| anyhow::anyhow!("--{what}: the camera stream at {addr}: {e}"))?;
+    let mut reader = ground_station::source::open(spec).map_err(|e| anyhow::anyhow!("--{what}: {e}"))?;
     let (tx, rx) = mpsc::sync_channel(8);
     std::thread::spawn(move || {
         loop {
@@ -259,6 +257,8 @@ pub fn run_station(
             if f.channels != 3 {
                 bail!("the forward stream sent a {}-channel frame; RGB expected", f.channels);
             }
+            ground_station::calib::check_size(&scenario.forward_camera_model(), f.width, f.height)
+                .map_err(|e| anyhow::anyhow!("the forward camera: {e}"))?;
             let img = RgbImage { width: f.width, height: f.height, data: f.data };
             let observation = vision.detect(&img).ok();
             stats.forward_measured += observation.is_some() as u64;
@@ -282,6 +282,8 @@ pub fn run_station(
                 if f.channels != 1 {
                     bail!("the down stream sent a {}-channel frame; grey expected", f.channels);
                 }
+                ground_station::calib::check_size(fl.camera(), f.width, f.height)
+                    .map_err(|e| anyhow::anyhow!("the downward camera: {e}"))?;
                 let seq = f.seq.unwrap_or(stats.down_frames) as u32;
                 let img = GrayImage { width: f.width, height: f.height, data: f.data };
                 // The rotation over the interval from the last telemetry's rates (what came down the radio).
