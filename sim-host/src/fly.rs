@@ -115,9 +115,10 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
             }
             use std::io::Write as _;
             std::io::stdout().flush()?;
-            let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
             let (st, ss) =
-                crate::virtual_vehicle::serve(&mut sil, bound, serve, end, stop, |t| progress(t, end))?;
+                crate::virtual_vehicle::serve(&mut sil, bound, serve, end, serve.stop.clone(), |t| {
+                    progress(t, end)
+                })?;
             serve_stats = Some(ss);
             st
         }

@@ -26,6 +26,8 @@ pub struct ServeOptions {
     pub down: Option<String>,
     /// How long to wait for the station's radio to connect (s).
     pub connect_timeout_s: f64,
+    /// Set to end the flight now (Ctrl-C): the summary and the log are written with what was flown.
+    pub stop: Arc<AtomicBool>,
 }
 
 /// What the serving counted.

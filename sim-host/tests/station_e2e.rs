@@ -205,3 +205,70 @@ fn a_calibration_of_another_size_than_the_stream_is_refused_with_both_sizes() {
     assert!(err.contains("320x240") && err.contains("640x480") && !err.contains("panicked"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn ctrl_c_ends_both_sides_with_their_outputs_written() {
+    let _serial = one_at_a_time();
+    let dir = std::env::temp_dir().join(format!("station-sigint-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let exe = env!("CARGO_BIN_EXE_sim-host");
+    let mut vehicle = Killed(
+        Command::new(exe)
+            .args(["fly", "--serve-link", "tcp:127.0.0.1:0", "--serve-forward", "tcp:127.0.0.1:0"])
+            .args(["--serve-down", "tcp:127.0.0.1:0", "--no-plots", "--duration", "60"])
+            .arg("--out")
+            .arg(dir.join("vehicle"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut ports = std::collections::HashMap::new();
+    let mut lines = BufReader::new(vehicle.0.stdout.take().unwrap()).lines();
+    while ports.len() < 3 {
+        let line = lines.next().expect("the vehicle printed its ports").unwrap();
+        let mut w = line.split_whitespace();
+        if let (Some("serving"), Some(k), Some(v)) = (w.next(), w.next(), w.next()) {
+            ports.insert(k.to_string(), v.to_string());
+        }
+    }
+    let mut station = Killed(
+        Command::new(exe)
+            .args([
+                "station",
+                "--link",
+                &ports["link"],
+                "--forward",
+                &ports["forward"],
+                "--down",
+                &ports["down"],
+            ])
+            .args(["--duration", "60"])
+            .arg("--out")
+            .arg(dir.join("station"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    std::thread::sleep(Duration::from_secs(4));
+    let interrupt = |c: &Killed| {
+        let ok = Command::new("kill").args(["-INT", &c.0.id().to_string()]).status().unwrap().success();
+        assert!(ok, "kill -INT");
+    };
+    interrupt(&station);
+    let st = wait(&mut station, Duration::from_secs(10), "the interrupted station");
+    interrupt(&vehicle);
+    let vs = wait(&mut vehicle, Duration::from_secs(10), "the interrupted vehicle");
+    assert!(st.success() && vs.success(), "station {st}, vehicle {vs}");
+    let s = read_json(&dir.join("station").join("station.json"));
+    assert_eq!(s["ended"], "stopped", "{s}");
+    assert!(s["telemetry"].as_u64().unwrap() > 0);
+    let v = read_json(&dir.join("vehicle").join("summary.json"));
+    let t = v["sim_time_s"].as_f64().unwrap();
+    assert!((3.0..30.0).contains(&t), "{t}");
+    // The flight log was closed properly: it reads without damage.
+    let log = sim_host::flightlog::read_log(&dir.join("vehicle").join("flight.log")).unwrap();
+    assert!(log.damage.is_empty(), "{:?}", log.damage);
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -145,12 +145,23 @@ pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
             FramesArg::Raw => sim_host::flightlog::FramePolicy::Raw,
             FramesArg::None => sim_host::flightlog::FramePolicy::Drop,
         },
-        serve: a.serve_link.as_ref().map(|link| sim_host::virtual_vehicle::ServeOptions {
-            link: link.clone(),
-            forward: a.serve_forward.clone().unwrap_or_default(),
-            down: a.serve_down.clone(),
-            connect_timeout_s: a.connect_timeout,
-        }),
+        serve: match &a.serve_link {
+            None => None,
+            Some(link) => {
+                // Ctrl-C ends the real-time flight with its summary and log written.
+                let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+                let flag = stop.clone();
+                ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::Relaxed))
+                    .context("installing the Ctrl-C handler")?;
+                Some(sim_host::virtual_vehicle::ServeOptions {
+                    link: link.clone(),
+                    forward: a.serve_forward.clone().unwrap_or_default(),
+                    down: a.serve_down.clone(),
+                    connect_timeout_s: a.connect_timeout,
+                    stop,
+                })
+            }
+        },
     };
     let bar = progress_bar(1000, "{spinner} flying [{bar:40}] {msg} ({elapsed} elapsed)");
     let result = fly(&opts, |t, end| {

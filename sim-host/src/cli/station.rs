@@ -75,6 +75,11 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
         answer_timeout_s: a.answer_timeout,
     };
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    // Ctrl-C ends the run with station.json written (the motors are the vehicle's: a real operator lands or
+    // kills first).
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::Relaxed))
+        .context("installing the Ctrl-C handler")?;
     let bar = super::common::progress_bar(1000, "{spinner} station [{bar:40}] {msg} ({elapsed})");
     let result = sim_host::station::run_station(&opts, stop, |t, mode| {
         bar.set_position((t / a.duration * 1000.0).min(1000.0) as u64);
