@@ -286,29 +286,56 @@ impl Estimator {
     /// height measurement of standard deviation `baro_noise_m`, gated: it bounds the height and the vertical
     /// velocity that the accelerometer alone lets drift by decimetres in seconds (every flight stack fuses
     /// one; PX4's EKF2 the same way, with the offset as a state). Returns `Accepted` when fused.
+    ///
+    /// A reading beyond the gate from a known height is refused and teaches nothing (the fixes may be the
+    /// wrong ones); [`super::BARO_RESET_AFTER`] refusals in a row while it is the height's only measurement
+    /// reset the height to it (counted as a position reset).
     pub fn fuse_baro(&mut self, baro_m: f32, dt_s: f32, height_known: bool) -> FuseOutcome {
         if !baro_m.is_finite() {
             self.counters.baro_rejected += 1;
             return FuseOutcome::Invalid;
         }
         let seen = baro_m - self.p.z;
+        let sigma = self.params.baro_noise_m;
+        // How far the reading may sit from the estimate: the gate on the height's and the reading's spread.
+        let gate = self.params.gate_sigma * libm::sqrtf(self.cov[IP + 2][IP + 2].max(0.0) + sigma * sigma);
         if height_known {
-            let a = (dt_s / self.params.baro_offset_tau_s).clamp(0.0, 1.0);
-            self.baro_offset = Some(match self.baro_offset {
-                Some(o) => o + (seen - o) * a,
-                None => seen,
-            });
+            match self.baro_offset {
+                // A reading that disagrees with the height the fixes give is not learned from: either the fixes
+                // or the barometer are wrong, and an offset taught by wrong fixes would hide them afterwards.
+                Some(o) if (seen - o).abs() > gate => {
+                    self.counters.baro_rejected += 1;
+                    return FuseOutcome::Rejected;
+                }
+                Some(o) => {
+                    let a = (dt_s / self.params.baro_offset_tau_s).clamp(0.0, 1.0);
+                    self.baro_offset = Some(o + (seen - o) * a);
+                }
+                None => self.baro_offset = Some(seen),
+            }
+            self.baro_rejections = 0;
             return FuseOutcome::Initialised;
         }
         let Some(offset) = self.baro_offset else { return FuseOutcome::Stale };
-        let sigma = self.params.baro_noise_m;
         let mut h = [0.0; N];
         h[IP + 2] = 1.0;
         if self.update(&h, baro_m - offset - self.p.z, sigma * sigma, true) {
             self.counters.baro_accepted += 1;
+            self.baro_rejections = 0;
             FuseOutcome::Accepted
         } else {
             self.counters.baro_rejected += 1;
+            self.baro_rejections = self.baro_rejections.saturating_add(1);
+            // Refused again and again while nothing else gives the height: the estimate has gone (a reset to
+            // bad fixes, a vertical velocity gone wrong), the barometer has not. The height is reset to it and
+            // the vertical velocity forgotten, so that the next readings correct it.
+            if self.baro_rejections >= super::BARO_RESET_AFTER {
+                self.reset_position_axis(2, baro_m - offset, sigma);
+                let sv = self.params.reset_velocity_sigma_m_s;
+                self.open_variance(IV + 2, sv * sv);
+                self.baro_rejections = 0;
+                self.counters.position_resets += 1;
+            }
             FuseOutcome::Rejected
         }
     }

@@ -45,6 +45,9 @@ pub const SPIKE_GYRO_RAD_S: f32 = 0.5;
 
 /// A repeated gyro reading counts as clipped above this rate (rad/s).
 pub const CLIP_MIN_RATE_RAD_S: f32 = 0.2;
+/// Barometer readings refused in a row, while nothing else gave the height, after which the height is reset to
+/// the barometer's (25 readings: half a second at 50 Hz).
+pub const BARO_RESET_AFTER: u16 = 25;
 
 /// Length of the state history kept for delayed measurements (s).
 pub const HISTORY_S: f32 = HISTORY_LEN as f32 * SNAPSHOT_EVERY_US as f32 * 1e-6;
@@ -253,6 +256,8 @@ pub struct Estimator {
     mag_offset: Option<f32>,
     /// The barometer's offset: its reading less the height (m), once learned.
     baro_offset: Option<f32>,
+    /// Barometer readings refused in a row while they were the height's only measurement.
+    baro_rejections: u16,
 }
 
 fn zero_cov() -> [[f32; N]; N] {
@@ -321,6 +326,7 @@ impl Estimator {
             imu_window: [None; 2],
             mag_offset: None,
             baro_offset: None,
+            baro_rejections: 0,
         }
     }
 
