@@ -140,8 +140,31 @@ fn distortion(model: &str, d: &[f64], field: &str) -> Result<Distortion, String>
     }
 }
 
-fn coefficients(d: &[f64]) -> [f64; 5] {
-    [0, 1, 2, 3, 4].map(|i| d.get(i).copied().unwrap_or(0.0))
+/// The calibration of either format: the camera checked, the file's values kept at full precision.
+fn calibration(
+    (width, height): (u16, u16),
+    [fx, fy, cx, cy]: [f64; 4],
+    distortion: Distortion,
+    coefficients: &[f64],
+    rate_hz: Option<f64>,
+    format: CalibFormat,
+) -> Result<Calibration, String> {
+    let camera = checked(CameraModel {
+        width,
+        height,
+        fx: fx as f32,
+        fy: fy as f32,
+        cx: cx as f32,
+        cy: cy as f32,
+        distortion,
+    })?;
+    Ok(Calibration {
+        camera,
+        intrinsics_px: [fx, fy, cx, cy],
+        distortion: [0, 1, 2, 3, 4].map(|i| coefficients.get(i).copied().unwrap_or(0.0)),
+        rate_hz,
+        format,
+    })
 }
 
 fn checked(camera: CameraModel) -> Result<CameraModel, String> {
@@ -190,22 +213,7 @@ fn camera_info(doc: &Yaml) -> Result<Calibration, String> {
     } else {
         distortion(&model, &d, "distortion_coefficients.data")?
     };
-    let camera = checked(CameraModel {
-        width,
-        height,
-        fx: k[0] as f32,
-        fy: k[4] as f32,
-        cx: k[2] as f32,
-        cy: k[5] as f32,
-        distortion,
-    })?;
-    Ok(Calibration {
-        camera,
-        intrinsics_px: [k[0], k[4], k[2], k[5]],
-        distortion: coefficients(&d),
-        rate_hz: None,
-        format: CalibFormat::CameraInfo,
-    })
+    calibration((width, height), [k[0], k[4], k[2], k[5]], distortion, &d, None, CalibFormat::CameraInfo)
 }
 
 fn kalibr(cam: &Yaml, prefix: &str) -> Result<Calibration, String> {
@@ -240,22 +248,7 @@ fn kalibr(cam: &Yaml, prefix: &str) -> Result<Calibration, String> {
         Yaml::BadValue => None,
         y => Some(number(y, &f("rate_hz"))?),
     };
-    let camera = checked(CameraModel {
-        width,
-        height,
-        fx: k[0] as f32,
-        fy: k[1] as f32,
-        cx: k[2] as f32,
-        cy: k[3] as f32,
-        distortion,
-    })?;
-    Ok(Calibration {
-        camera,
-        intrinsics_px: [k[0], k[1], k[2], k[3]],
-        distortion: coefficients(&d),
-        rate_hz,
-        format: CalibFormat::Kalibr,
-    })
+    calibration((width, height), [k[0], k[1], k[2], k[3]], distortion, &d, rate_hz, CalibFormat::Kalibr)
 }
 
 #[cfg(test)]

@@ -31,11 +31,8 @@ impl LinkSpec {
                 return Err(format!("`{s}`: a device and a baud rate from 1200 to 4000000 expected"));
             }
             Ok(Self::Serial { device: device.to_string(), baud })
-        } else if let Some(addr) = s.strip_prefix("tcp:") {
-            if addr.rsplit_once(':').is_none_or(|(h, p)| h.is_empty() || p.parse::<u16>().is_err()) {
-                return Err(format!("`{s}`: tcp:HOST:PORT expected (e.g. tcp:127.0.0.1:5760)"));
-            }
-            Ok(Self::Tcp(addr.to_string()))
+        } else if s.starts_with("tcp:") {
+            Ok(Self::Tcp(tcp_address(s)?.to_string()))
         } else {
             Err(format!("`{s}`: serial:DEVICE:BAUD or tcp:HOST:PORT expected"))
         }
@@ -47,6 +44,18 @@ impl LinkSpec {
             Self::Serial { baud, .. } => Some(*baud as f64 / 10.0),
             Self::Tcp(_) => None,
         }
+    }
+}
+
+/// The `HOST:PORT` of a `tcp:HOST:PORT` spec (the radio's, a camera stream's, a server's).
+pub fn tcp_address(spec: &str) -> Result<&str, String> {
+    match spec.strip_prefix("tcp:") {
+        Some(addr)
+            if addr.rsplit_once(':').is_some_and(|(h, p)| !h.is_empty() && p.parse::<u16>().is_ok()) =>
+        {
+            Ok(addr)
+        }
+        _ => Err(format!("`{spec}`: tcp:HOST:PORT expected (e.g. tcp:127.0.0.1:5760)")),
     }
 }
 

@@ -28,10 +28,8 @@ pub fn now_unix_us() -> u64 {
 
 /// Opens a source from its spec (`tcp:HOST:PORT`, `folder:PATH`, `folder:PATH@fast`).
 pub fn open(spec: &str) -> Result<Box<dyn FrameSource>, String> {
-    if let Some(addr) = spec.strip_prefix("tcp:") {
-        if addr.rsplit_once(':').is_none_or(|(h, p)| h.is_empty() || p.parse::<u16>().is_err()) {
-            return Err(format!("`{spec}`: tcp:HOST:PORT expected"));
-        }
+    if spec.starts_with("tcp:") {
+        let addr = crate::link::tcp_address(spec)?;
         let r = StreamReader::connect(addr).map_err(|e| format!("the camera stream at {addr}: {e}"))?;
         Ok(Box::new(r))
     } else if let Some(rest) = spec.strip_prefix("folder:") {

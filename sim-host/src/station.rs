@@ -12,12 +12,13 @@ use control_core::FlightMode;
 use ground_station::clock::ClockSync;
 use ground_station::link::{Link, LinkSpec};
 use ground_station::operator::{MissionScript, Operator};
+use ground_station::source::now_unix_us;
 use ground_station::stream::Frame;
 use protocol::{Downlink, FlowMeasurement, Telemetry, Uplink, VisionMeasurement};
 use std::io::ErrorKind;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, mpsc};
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 /// Time-sync requests per second.
 pub const TIME_SYNC_HZ: f64 = 10.0;
@@ -71,6 +72,8 @@ pub struct StationStats {
     pub command_acks: Vec<String>,
     /// Time-sync answers received.
     pub time_sync_answers: u64,
+    /// Of those, refused by the clock sync: arriving before their request left, or slower than its limit.
+    pub time_sync_refused: [u64; 2],
     /// The clock sync's error bound at the end (ms).
     pub clock_bound_ms: Option<f64>,
     /// The vehicle's modes as the telemetry reported them, with the station's time (s).
@@ -84,10 +87,6 @@ pub struct StationStats {
     pub frame_to_uplink_ms: [f64; 2],
     /// Why the station stopped.
     pub ended: String,
-}
-
-fn now_unix_us() -> u64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_micros() as u64)
 }
 
 /// A camera stream read on its own thread: frames with their arrival time; the error that ended it.
@@ -215,8 +214,10 @@ pub fn run_station(
                 }
                 Downlink::TimeSync { station_time_us, vehicle_time_us } => {
                     stats.time_sync_answers += 1;
-                    // A refused exchange is counted by the clock sync itself.
-                    let _refusal_counted = clock.observe(station_time_us, vehicle_time_us, at);
+                    // A refused exchange is counted by the clock sync itself (reported below).
+                    if clock.observe(station_time_us, vehicle_time_us, at).is_err() {
+                        continue;
+                    }
                 }
                 Downlink::CommandAck(r) => stats.command_acks.push(format!("{t:.2} s: {r:?}")),
                 Downlink::Param(_) => {}
@@ -318,6 +319,8 @@ pub fn run_station(
         None => ended,
     };
     stats.clock_bound_ms = clock.bound_us().map(|b| b * 1e-3);
+    let cc = clock.counters();
+    stats.time_sync_refused = [cc.acausal, cc.too_slow];
     if let Ok(c) = decoder_counts.lock() {
         stats.link_decoder = c.0;
         stats.link_bytes = [sent_bytes, c.1];

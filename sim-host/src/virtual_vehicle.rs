@@ -7,13 +7,14 @@
 //! the vehicle's clock with its clock sync, as it must with a real vehicle.
 use crate::sil::{RunStats, Sil};
 use anyhow::{Context, Result, bail};
+use ground_station::source::now_unix_us;
 use ground_station::stream::{Frame, PartEncoding, StreamWriter};
 use protocol::{Downlink, Uplink};
 use std::io::{ErrorKind, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, mpsc};
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 /// Where the virtual vehicle listens.
 #[derive(Clone, Debug)]
@@ -45,21 +46,6 @@ pub struct ServeStats {
     pub frames_dropped: [u64; 2],
     /// How far the simulation fell behind the wall clock at worst (s).
     pub max_lag_s: f64,
-}
-
-/// `tcp:HOST:PORT` to `HOST:PORT`.
-pub fn tcp_address(spec: &str) -> Result<String> {
-    let addr = spec
-        .strip_prefix("tcp:")
-        .with_context(|| format!("`{spec}`: tcp:HOST:PORT expected (e.g. tcp:127.0.0.1:5760)"))?;
-    if addr.rsplit_once(':').is_none_or(|(h, p)| h.is_empty() || p.parse::<u16>().is_err()) {
-        bail!("`{spec}`: tcp:HOST:PORT expected (e.g. tcp:127.0.0.1:5760)");
-    }
-    Ok(addr.to_string())
-}
-
-fn now_unix_us() -> u64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_micros() as u64)
 }
 
 /// A camera's server: the first client to connect gets the stream (raw parts: no encoding on loopback);
@@ -138,8 +124,8 @@ impl Bound {
     /// Binds the ports.
     pub fn bind(opts: &ServeOptions) -> Result<Self> {
         let bind = |spec: &str, what: &str| -> Result<TcpListener> {
-            let addr = tcp_address(spec)?;
-            TcpListener::bind(&addr).with_context(|| format!("{what}: cannot listen on {addr}"))
+            let addr = ground_station::link::tcp_address(spec).map_err(|e| anyhow::anyhow!("{what} {e}"))?;
+            TcpListener::bind(addr).with_context(|| format!("{what}: cannot listen on {addr}"))
         };
         Ok(Self {
             link: bind(&opts.link, "--serve-link")?,

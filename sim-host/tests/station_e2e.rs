@@ -37,6 +37,33 @@ fn wait(child: &mut Killed, limit: Duration, what: &str) -> std::process::ExitSt
     }
 }
 
+/// Starts the virtual vehicle on ports of its choosing (`--serve-* tcp:127.0.0.1:0`) with `args`, writing into
+/// `out`; returns it and the ports it printed (`link`, `forward`, `down`).
+fn start_vehicle(out: &Path, args: &[&str]) -> (Killed, std::collections::HashMap<String, String>) {
+    let mut vehicle = Killed(
+        Command::new(env!("CARGO_BIN_EXE_sim-host"))
+            .args(["fly", "--serve-link", "tcp:127.0.0.1:0", "--serve-forward", "tcp:127.0.0.1:0"])
+            .args(["--serve-down", "tcp:127.0.0.1:0"])
+            .args(args)
+            .arg("--out")
+            .arg(out)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("starting the virtual vehicle"),
+    );
+    let mut ports = std::collections::HashMap::new();
+    let mut lines = BufReader::new(vehicle.0.stdout.take().unwrap()).lines();
+    while ports.len() < 3 {
+        let line = lines.next().expect("the vehicle printed its ports").unwrap();
+        let mut w = line.split_whitespace();
+        if let (Some("serving"), Some(k), Some(v)) = (w.next(), w.next(), w.next()) {
+            ports.insert(k.to_string(), v.to_string());
+        }
+    }
+    (vehicle, ports)
+}
+
 fn read_json(p: &Path) -> Value {
     serde_json::from_str(&std::fs::read_to_string(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
         .unwrap()
@@ -48,28 +75,10 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
     let dir = std::env::temp_dir().join(format!("station-e2e-{}", std::process::id()));
     std::fs::remove_dir_all(&dir).ok();
     let exe = env!("CARGO_BIN_EXE_sim-host");
-    let mut vehicle = Killed(
-        Command::new(exe)
-            .args(["fly", "--serve-link", "tcp:127.0.0.1:0", "--serve-forward", "tcp:127.0.0.1:0"])
-            .args(["--serve-down", "tcp:127.0.0.1:0", "--no-plots", "--duration", "40", "--seed", "2"])
-            .args(["--connect-timeout", "30"])
-            .arg("--out")
-            .arg(dir.join("vehicle"))
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("starting the virtual vehicle"),
+    let (mut vehicle, ports) = start_vehicle(
+        &dir.join("vehicle"),
+        &["--no-plots", "--duration", "40", "--seed", "2", "--connect-timeout", "30"],
     );
-    // The ports it chose.
-    let mut ports = std::collections::HashMap::new();
-    let mut lines = BufReader::new(vehicle.0.stdout.take().unwrap()).lines();
-    while ports.len() < 3 {
-        let line = lines.next().expect("the vehicle printed its ports").unwrap();
-        let mut w = line.split_whitespace();
-        if let (Some("serving"), Some(k), Some(v)) = (w.next(), w.next(), w.next()) {
-            ports.insert(k.to_string(), v.to_string());
-        }
-    }
     let mut station = Killed(
         Command::new(exe)
             .args([
@@ -170,26 +179,8 @@ fn a_calibration_of_another_size_than_the_stream_is_refused_with_both_sizes() {
     )
     .unwrap();
     let exe = env!("CARGO_BIN_EXE_sim-host");
-    let mut vehicle = Killed(
-        Command::new(exe)
-            .args(["fly", "--serve-link", "tcp:127.0.0.1:0", "--serve-forward", "tcp:127.0.0.1:0"])
-            .args(["--serve-down", "tcp:127.0.0.1:0", "--no-plots", "--no-log", "--duration", "20"])
-            .arg("--out")
-            .arg(dir.join("vehicle"))
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let mut ports = std::collections::HashMap::new();
-    let mut lines = BufReader::new(vehicle.0.stdout.take().unwrap()).lines();
-    while ports.len() < 3 {
-        let line = lines.next().expect("the vehicle printed its ports").unwrap();
-        let mut w = line.split_whitespace();
-        if let (Some("serving"), Some(k), Some(v)) = (w.next(), w.next(), w.next()) {
-            ports.insert(k.to_string(), v.to_string());
-        }
-    }
+    let (vehicle, ports) =
+        start_vehicle(&dir.join("vehicle"), &["--no-plots", "--no-log", "--duration", "20"]);
     let out = Command::new(exe)
         .args(["station", "--link", &ports["link"], "--forward", &ports["forward"], "--down", &ports["down"]])
         .arg("--calib-forward")
@@ -212,26 +203,7 @@ fn ctrl_c_ends_both_sides_with_their_outputs_written() {
     let dir = std::env::temp_dir().join(format!("station-sigint-{}", std::process::id()));
     std::fs::remove_dir_all(&dir).ok();
     let exe = env!("CARGO_BIN_EXE_sim-host");
-    let mut vehicle = Killed(
-        Command::new(exe)
-            .args(["fly", "--serve-link", "tcp:127.0.0.1:0", "--serve-forward", "tcp:127.0.0.1:0"])
-            .args(["--serve-down", "tcp:127.0.0.1:0", "--no-plots", "--duration", "60"])
-            .arg("--out")
-            .arg(dir.join("vehicle"))
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let mut ports = std::collections::HashMap::new();
-    let mut lines = BufReader::new(vehicle.0.stdout.take().unwrap()).lines();
-    while ports.len() < 3 {
-        let line = lines.next().expect("the vehicle printed its ports").unwrap();
-        let mut w = line.split_whitespace();
-        if let (Some("serving"), Some(k), Some(v)) = (w.next(), w.next(), w.next()) {
-            ports.insert(k.to_string(), v.to_string());
-        }
-    }
+    let (mut vehicle, ports) = start_vehicle(&dir.join("vehicle"), &["--no-plots", "--duration", "60"]);
     let mut station = Killed(
         Command::new(exe)
             .args([

@@ -155,7 +155,7 @@ pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
                     .context("installing the Ctrl-C handler")?;
                 Some(sim_host::virtual_vehicle::ServeOptions {
                     link: link.clone(),
-                    forward: a.serve_forward.clone().unwrap_or_default(),
+                    forward: a.serve_forward.clone().context("--serve-link needs --serve-forward")?,
                     down: a.serve_down.clone(),
                     connect_timeout_s: a.connect_timeout,
                     stop,
