@@ -47,6 +47,16 @@ impl LinkSpec {
     }
 }
 
+/// The spec as `parse` reads it (`serial:DEVICE:BAUD`, `tcp:HOST:PORT`).
+impl std::fmt::Display for LinkSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Serial { device, baud } => write!(f, "serial:{device}:{baud}"),
+            Self::Tcp(addr) => write!(f, "tcp:{addr}"),
+        }
+    }
+}
+
 /// The `HOST:PORT` of a `tcp:HOST:PORT` spec (the radio's, a camera stream's, a server's).
 pub fn tcp_address(spec: &str) -> Result<&str, String> {
     match spec.strip_prefix("tcp:") {
@@ -160,6 +170,9 @@ mod tests {
         );
         assert_eq!(LinkSpec::parse("tcp:127.0.0.1:5760"), Ok(LinkSpec::Tcp("127.0.0.1:5760".into())));
         assert_eq!(LinkSpec::parse("serial:/dev/ttyUSB0:57600").unwrap().capacity_bytes_s(), Some(5760.0));
+        for spec in ["serial:/dev/ttyUSB0:57600", "tcp:127.0.0.1:5760"] {
+            assert_eq!(LinkSpec::parse(spec).unwrap().to_string(), spec);
+        }
         for bad in [
             "udp:1.2.3.4:5",
             "serial:/dev/ttyUSB0",

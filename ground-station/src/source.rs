@@ -26,11 +26,15 @@ pub fn now_unix_us() -> u64 {
     SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_micros() as u64)
 }
 
+/// How long a camera stream's server may take to answer the request.
+pub const STREAM_ANSWER_WITHIN: std::time::Duration = std::time::Duration::from_secs(5);
+
 /// Opens a source from its spec (`tcp:HOST:PORT`, `folder:PATH`, `folder:PATH@fast`).
 pub fn open(spec: &str) -> Result<Box<dyn FrameSource>, String> {
     if spec.starts_with("tcp:") {
         let addr = crate::link::tcp_address(spec)?;
-        let r = StreamReader::connect(addr).map_err(|e| format!("the camera stream at {addr}: {e}"))?;
+        let r = StreamReader::connect(addr, STREAM_ANSWER_WITHIN)
+            .map_err(|e| format!("the camera stream at {addr}: {e}"))?;
         Ok(Box::new(r))
     } else if let Some(rest) = spec.strip_prefix("folder:") {
         let (path, pace) = match rest.strip_suffix("@fast") {

@@ -167,12 +167,24 @@ pub struct StreamReader<R: Read> {
 }
 
 impl StreamReader<TcpStream> {
-    /// Connects to a server at `addr` (`host:port`) and asks for its stream.
-    pub fn connect(addr: &str) -> Result<Self, StreamError> {
+    /// Connects to a server at `addr` (`host:port`) and asks for its stream; a server that does not answer
+    /// within `answer_within` is an error saying so (after the response head, reads wait as long as the
+    /// stream takes: the station watches for stalls itself).
+    pub fn connect(addr: &str, answer_within: std::time::Duration) -> Result<Self, StreamError> {
         let mut s = TcpStream::connect(addr)?;
         s.set_nodelay(true)?;
+        s.set_read_timeout(Some(answer_within))?;
         s.write_all(b"GET / HTTP/1.0\r\n\r\n")?;
-        Self::start(s)
+        let r = Self::start(s).map_err(|e| match e {
+            StreamError::Io(io)
+                if matches!(io.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) =>
+            {
+                StreamError::Format(format!("no answer within {} s", answer_within.as_secs_f64()))
+            }
+            other => other,
+        })?;
+        r.input.get_ref().set_read_timeout(None)?;
+        Ok(r)
     }
 }
 
@@ -369,5 +381,21 @@ mod tests {
         StreamWriter::start(&mut bytes, PartEncoding::Raw).unwrap().write(&frame(0, 3)).unwrap();
         let cut = &bytes[..bytes.len() - 20];
         assert!(StreamReader::start(cut).unwrap().next_frame().is_err());
+    }
+
+    #[test]
+    fn a_server_that_accepts_and_stays_silent_is_an_error_not_a_hang() {
+        let server = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = server.local_addr().unwrap().to_string();
+        let hold = std::thread::spawn(move || {
+            let c = server.accept();
+            std::thread::sleep(std::time::Duration::from_millis(600));
+            drop(c);
+        });
+        let t = std::time::Instant::now();
+        let e = StreamReader::connect(&addr, std::time::Duration::from_millis(200)).err().unwrap();
+        assert!(e.to_string().contains("no answer within 0.2 s"), "{e}");
+        assert!(t.elapsed() < std::time::Duration::from_millis(550), "{:?}", t.elapsed());
+        hold.join().unwrap();
     }
 }

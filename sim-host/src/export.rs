@@ -6,7 +6,7 @@
 //! (`foxglove.PoseInFrame`, `foxglove.CompressedImage` for PNG frames, `foxglove.RawImage` for raw frames) so
 //! that 3D and image panels show them without configuration. Message times are the vehicle's clock: a step's
 //! outputs at the step's time, a radio message at the step that received it, a frame at its capture time.
-use crate::flightlog::{CameraFrame, CameraId, FrameEncoding, LogHeader, LogItem, LogRecord};
+use crate::flightlog::{CameraFrame, CameraId, FrameEncoding, LogHeader, LogItem, LogRecord, StationEvent};
 use anyhow::{Context, Result};
 use geometry::frames::Attitude;
 use protocol::{Downlink, Uplink};
@@ -196,6 +196,27 @@ fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
                            "airborne": r.airborne}),
                 ),
             });
+        }
+        // A ground station's records, at the station's time (us since the Unix epoch).
+        LogRecord::Station(e) => {
+            let time_us = e.station_time_us();
+            let (topic, schema, value) = match e {
+                StationEvent::Sent { message, .. } => match message {
+                    Uplink::Vision(x) => ("/station/uplink/vision", "wlq.VisionMeasurement", v(x)),
+                    Uplink::Flow(x) => ("/station/uplink/flow", "wlq.FlowMeasurement", v(x)),
+                    other => ("/station/uplink/other", "wlq.Uplink", v(other)),
+                },
+                StationEvent::Received { message, .. } => match message {
+                    Downlink::Telemetry(t) => ("/station/downlink/telemetry", "wlq.Telemetry", v(t)),
+                    other => ("/station/downlink/other", "wlq.Downlink", v(other)),
+                },
+                StationEvent::Clock { vehicle_time_us, bound_us, .. } => (
+                    "/station/clock",
+                    "wlq.StationClock",
+                    json!({"vehicle_time_us": vehicle_time_us, "bound_us": bound_us}),
+                ),
+            };
+            out.push(Msg { topic, schema, time_us, value: with_time(time_us, value) });
         }
         // Frames have topics of their own; the end record is the file's, not the flight's.
         LogRecord::Frame(_) | LogRecord::End { .. } => {}

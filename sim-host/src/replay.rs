@@ -122,6 +122,8 @@ pub struct ReplaySummary {
     /// Whether the log holds the flight code's outputs (reports or downlinks) to compare with; an imported
     /// dataset holds none.
     pub has_outputs: bool,
+    /// A ground station's records (what crossed the radio, on the station's clock): not re-run.
+    pub station_records: u64,
     /// The attitude against the log's reference, when it has one (`replay --summary`).
     pub reference: Option<serde_json::Value>,
 }
@@ -348,6 +350,11 @@ pub fn replay_stream(
                 write(&LogRecord::Reference(r))?;
             }
             r @ LogRecord::Truth { .. } => write(&r)?,
+            // A ground station's record of the radio: nothing to re-run, kept in a replayed log.
+            LogRecord::Station(e) => {
+                s.station_records += 1;
+                write(&LogRecord::Station(e))?;
+            }
             // The reader has checked it (count and CRC-32); a replayed log gets its own from its writer.
             LogRecord::End { .. } => {}
         }

@@ -3,7 +3,15 @@
 //! code as the simulator's station, stamps the measurements on the vehicle's clock (clock sync over the
 //! radio), runs the operator's script against the mode the telemetry reports, and sends all of it up the
 //! radio. It knows the vehicle only through the radio.
+//!
+//! Every run records a flight log (`station.log`, docs/log-format.md): each message sent and received with the
+//! station's time (`LogRecord::Station`), the clock sync's mapping to the vehicle's clock after each answer
+//! it accepted, and the camera frames if asked (at their capture time on the vehicle's clock). The log is
+//! finished (with its end record) however the run ends, an error included.
 use crate::downward::GroundFlow;
+use crate::flightlog::{
+    CameraFrame, CameraId, FrameEncoding, FramePolicy, LogRecord, LogWriter, StationEvent,
+};
 use crate::imageio::{GrayImage, RgbImage};
 use crate::scenario::Scenario;
 use crate::vision::GroundVision;
@@ -40,6 +48,10 @@ pub struct StationOptions {
     pub duration_s: f64,
     /// How long to wait for the first telemetry (s).
     pub answer_timeout_s: f64,
+    /// The flight log to write.
+    pub log: std::path::PathBuf,
+    /// Camera frames in the log.
+    pub frames: FramePolicy,
 }
 
 /// What the station counted.
@@ -50,6 +62,8 @@ pub struct StationStats {
     /// Forward frames received, measured (the line found), without a line, and dropped before the clock was
     /// known.
     pub forward_frames: u64,
+    /// Times a camera stream stalled (no frame for [`CAMERA_STALL_S`] after it had sent one): forward, down.
+    pub camera_stalls: [u64; 2],
     /// Forward frames in which the line was found.
     pub forward_measured: u64,
     /// Forward frames that arrived before the vehicle's clock was known (not sent).
@@ -87,13 +101,39 @@ pub struct StationStats {
     pub frame_to_uplink_ms: [f64; 2],
     /// Why the station stopped.
     pub ended: String,
+    /// Records in the station's flight log.
+    pub log_records: u64,
 }
 
-/// A camera stream read on its own thread: frames with their arrival time; the error that ended it.
-fn camera_thread(spec: &str, what: &'static str) -> Result<mpsc::Receiver<Result<(Frame, u64), String>>> {
-    let mut reader = ground_station::source::open(spec).map_err(|e| anyhow::anyhow!("--{what}: {e}"))?;
+/// The station's flight log.
+struct Recorder {
+    log: LogWriter,
+    frames: Option<FrameEncoding>,
+}
+
+impl Recorder {
+    fn event(&mut self, e: StationEvent) -> Result<()> {
+        self.log.write(&LogRecord::Station(e)).context("the station's flight log")
+    }
+
+    fn frame(&mut self, f: Result<CameraFrame>) -> Result<()> {
+        self.log.write(&LogRecord::Frame(f?)).context("the station's flight log")
+    }
+}
+
+/// A camera stream opened and read on its own thread (a camera that does not answer does not hold up the
+/// radio): frames with their arrival time; the error that ended it.
+fn camera_thread(spec: &str, what: &'static str) -> mpsc::Receiver<Result<(Frame, u64), String>> {
     let (tx, rx) = mpsc::sync_channel(8);
+    let spec = spec.to_string();
     std::thread::spawn(move || {
+        let mut reader = match ground_station::source::open(&spec) {
+            Ok(r) => r,
+            Err(e) => {
+                let _closed = tx.send(Err(format!("--{what}: {e}")));
+                return;
+            }
+        };
         loop {
             match reader.next_frame() {
                 Ok(Some(f)) => {
@@ -112,15 +152,83 @@ fn camera_thread(spec: &str, what: &'static str) -> Result<mpsc::Receiver<Result
             }
         }
     });
-    Ok(rx)
+    rx
+}
+
+/// A camera silent for this long is stalled (counted once per stall; 15 frames at 30 Hz).
+pub const CAMERA_STALL_S: f64 = 0.5;
+
+/// Stalls of one camera: gaps between frames longer than [`CAMERA_STALL_S`].
+#[derive(Clone, Copy, Debug, Default)]
+struct StallWatch {
+    last_frame_s: Option<f64>,
+    stalled: bool,
+}
+
+impl StallWatch {
+    fn frame(&mut self, t: f64) {
+        self.last_frame_s = Some(t);
+        self.stalled = false;
+    }
+
+    /// Whether a new stall began at `t` (the camera had sent a frame before).
+    fn check(&mut self, t: f64) -> bool {
+        let begun = !self.stalled && self.last_frame_s.is_some_and(|l| t - l > CAMERA_STALL_S);
+        self.stalled |= begun;
+        begun
+    }
 }
 
 /// Runs the station until the vehicle has landed and disarmed after flying, the duration ran out, `stop`
-/// is set, or the vehicle went away.
+/// is set, or the vehicle went away. The flight log is written however it ends: on an error, the error says
+/// where the log of the run so far is.
 pub fn run_station(
     opts: &StationOptions,
     stop: Arc<AtomicBool>,
+    progress: impl FnMut(f64, &str),
+) -> Result<StationStats> {
+    let header = crate::flightlog::LogHeader {
+        format_version: crate::flightlog::LOG_FORMAT_VERSION,
+        schema_hash: crate::flightlog::schema_hash(),
+        wire_version: protocol::frame::WIRE_VERSION,
+        writer: format!("sim-host {} station", env!("CARGO_PKG_VERSION")),
+        scenario_toml: toml::to_string(&opts.scenario).context("the scenario as TOML")?,
+        seed: 0,
+        camera: format!("station: forward {}, down {}", opts.forward, opts.down.as_deref().unwrap_or("none")),
+        flight_computer: format!("the vehicle at the other end of the radio ({})", opts.link),
+        reference: String::new(),
+        reference_yaw_absolute: false,
+    };
+    let mut rec = Recorder {
+        log: LogWriter::create(&opts.log, &header)?,
+        frames: match opts.frames {
+            FramePolicy::Drop => None,
+            FramePolicy::Png => Some(FrameEncoding::Png),
+            FramePolicy::Raw => Some(FrameEncoding::Raw),
+        },
+    };
+    let result = station_loop(opts, stop, progress, &mut rec);
+    let records = rec.log.records;
+    let kept = rec.log.finish();
+    match (result, kept) {
+        (Ok(mut st), Ok(())) => {
+            st.log_records = records;
+            Ok(st)
+        }
+        (Ok(_), Err(e)) => Err(e),
+        (Err(e), Ok(())) => Err(anyhow::anyhow!(
+            "{e:#}\nthe log of the run so far ({records} records) is {}",
+            opts.log.display()
+        )),
+        (Err(e), Err(log)) => Err(e.context(format!("and its flight log: {log:#}"))),
+    }
+}
+
+fn station_loop(
+    opts: &StationOptions,
+    stop: Arc<AtomicBool>,
     mut progress: impl FnMut(f64, &str),
+    rec: &mut Recorder,
 ) -> Result<StationStats> {
     let scenario = &opts.scenario;
     let Link { mut reader, mut writer } = ground_station::link::open(&opts.link, Duration::from_millis(1))
@@ -159,8 +267,9 @@ pub fn run_station(
         }
         None
     });
-    let forward = camera_thread(&opts.forward, "forward")?;
-    let down = opts.down.as_deref().map(|d| camera_thread(d, "down")).transpose()?;
+    let forward = camera_thread(&opts.forward, "forward");
+    let down = opts.down.as_deref().map(|d| camera_thread(d, "down"));
+    let (mut forward_watch, mut down_watch) = (StallWatch::default(), StallWatch::default());
 
     let mut vision = GroundVision::new(scenario);
     let mut flow = down.as_ref().map(|_| GroundFlow::new(scenario));
@@ -172,13 +281,13 @@ pub fn run_station(
     let mut latencies_us: Vec<u64> = Vec::new();
     let mut out = [0u8; protocol::frame::MAX_FRAME];
     let mut sent_bytes = 0u64;
-    let mut send = |m: &Uplink, w: &mut Box<dyn std::io::Write + Send>| -> Result<()> {
+    let mut send = |m: &Uplink, w: &mut Box<dyn std::io::Write + Send>, rec: &mut Recorder| -> Result<()> {
         let bytes =
             protocol::frame::encode(m, &mut out).map_err(|e| anyhow::anyhow!("encoding {m:?}: {e:?}"))?;
         w.write_all(bytes).context("the radio")?;
         w.flush().context("the radio")?;
         sent_bytes += bytes.len() as u64;
-        Ok(())
+        rec.event(StationEvent::Sent { station_time_us: now_unix_us(), message: *m })
     };
     let start = Instant::now();
     let start_us = now_unix_us();
@@ -202,6 +311,7 @@ pub fn run_station(
         }
         // What came down.
         while let Ok((m, at)) = down_rx.try_recv() {
+            rec.event(StationEvent::Received { station_time_us: at, message: m })?;
             match m {
                 Downlink::Telemetry(tm) => {
                     stats.telemetry += 1;
@@ -218,6 +328,10 @@ pub fn run_station(
                     if clock.observe(station_time_us, vehicle_time_us, at).is_err() {
                         continue;
                     }
+                    if let (Some(v), Some(b)) = (clock.vehicle_time_us(at), clock.bound_us()) {
+                        let bound_us = b.ceil().min(u32::MAX as f64) as u32;
+                        rec.event(StationEvent::Clock { station_time_us: at, vehicle_time_us: v, bound_us })?;
+                    }
                 }
                 Downlink::CommandAck(r) => stats.command_acks.push(format!("{t:.2} s: {r:?}")),
                 Downlink::Param(_) => {}
@@ -231,17 +345,17 @@ pub fn run_station(
         }
         // Up: time sync, heartbeat, the operator.
         if t >= next_sync {
-            send(&Uplink::TimeSync { station_time_us: now_unix_us() }, &mut writer)?;
+            send(&Uplink::TimeSync { station_time_us: now_unix_us() }, &mut writer, rec)?;
             stats.uplink_other += 1;
             next_sync += 1.0 / TIME_SYNC_HZ;
         }
         if t >= next_heartbeat {
-            send(&Uplink::Heartbeat, &mut writer)?;
+            send(&Uplink::Heartbeat, &mut writer, rec)?;
             stats.uplink_other += 1;
             next_heartbeat += 1.0 / scenario.link.heartbeat_hz;
         }
         if let Some(c) = operator.tick(now_unix_us() - start_us, telemetry.map(|tm| tm.mode)) {
-            send(&Uplink::Command(c), &mut writer)?;
+            send(&Uplink::Command(c), &mut writer, rec)?;
             stats.uplink_commands += 1;
         }
         // The cameras.
@@ -250,6 +364,7 @@ pub fn run_station(
             idle = false;
             let (f, arrived) = r.map_err(anyhow::Error::msg)?;
             stats.forward_frames += 1;
+            forward_watch.frame(t);
             let stamp = f.timestamp_us.unwrap_or(arrived);
             let Some(vehicle_us) = clock.vehicle_time_us(stamp) else {
                 stats.frames_before_clock += 1;
@@ -261,14 +376,14 @@ pub fn run_station(
             ground_station::calib::check_size(&scenario.forward_camera_model(), f.width, f.height)
                 .map_err(|e| anyhow::anyhow!("the forward camera: {e}"))?;
             let img = RgbImage { width: f.width, height: f.height, data: f.data };
+            let frame_seq = f.seq.unwrap_or(stats.forward_frames) as u32;
+            if let Some(enc) = rec.frames {
+                rec.frame(CameraFrame::rgb(frame_seq, vehicle_us, &img, enc))?;
+            }
             let observation = vision.detect(&img).ok();
             stats.forward_measured += observation.is_some() as u64;
-            let m = VisionMeasurement {
-                capture_time_us: vehicle_us,
-                frame_seq: f.seq.unwrap_or(stats.forward_frames) as u32,
-                observation,
-            };
-            send(&Uplink::Vision(m), &mut writer)?;
+            let m = VisionMeasurement { capture_time_us: vehicle_us, frame_seq, observation };
+            send(&Uplink::Vision(m), &mut writer, rec)?;
             stats.uplink_vision += 1;
             latencies_us.push(now_unix_us().saturating_sub(arrived));
         }
@@ -277,6 +392,7 @@ pub fn run_station(
                 idle = false;
                 let (f, arrived) = r.map_err(anyhow::Error::msg)?;
                 stats.down_frames += 1;
+                down_watch.frame(t);
                 let Some(vehicle_us) = clock.vehicle_time_us(f.timestamp_us.unwrap_or(arrived)) else {
                     continue;
                 };
@@ -292,20 +408,31 @@ pub fn run_station(
                 let rates = telemetry.map_or(geometry::Vec3::ZERO, |tm| tm.estimate.rates_rad_s);
                 let r_bc = scenario.down_camera_mount().body_from_camera;
                 let predicted = r_bc.transpose().mul_vec(rates * dt);
+                if let Some(enc) = rec.frames {
+                    let hint = predicted.to_array();
+                    rec.frame(CameraFrame::gray(CameraId::Downward, seq, vehicle_us, &img, hint, enc))?;
+                }
                 if let (Some(result), Some((t_prev, _))) = (fl.add(&img, predicted), prev_down) {
                     let m =
                         FlowMeasurement { t_prev_us: t_prev, t_next_us: vehicle_us, frame_seq: seq, result };
-                    send(&Uplink::Flow(m), &mut writer)?;
+                    send(&Uplink::Flow(m), &mut writer, rec)?;
                     stats.uplink_flow += 1;
                     stats.flow_sent += 1;
                 }
                 prev_down = Some((vehicle_us, seq));
             }
         }
+        stats.camera_stalls[0] += forward_watch.check(t) as u64;
+        stats.camera_stalls[1] += down_watch.check(t) as u64;
         if t - last_progress >= 0.1 {
             last_progress = t;
-            let mode = telemetry.map_or("no telemetry yet".to_string(), |tm| format!("{:?}", tm.mode));
-            progress(t, &mode);
+            let mut status = telemetry.map_or("no telemetry yet".to_string(), |tm| format!("{:?}", tm.mode));
+            for (watch, name) in [(&forward_watch, "forward"), (&down_watch, "down")] {
+                if watch.stalled {
+                    status += &format!(", the {name} camera stalled");
+                }
+            }
+            progress(t, &status);
         }
         if idle {
             std::thread::sleep(Duration::from_millis(1));
@@ -333,4 +460,24 @@ pub fn run_station(
     };
     stats.frame_to_uplink_ms = [q(0.5), q(0.95)];
     Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_camera_gap_longer_than_the_stall_limit_counts_once_until_frames_come_back() {
+        let mut w = StallWatch::default();
+        // Nothing yet: a camera that never sent is not stalled (its error or the clock says why).
+        assert!(!w.check(10.0));
+        w.frame(1.0);
+        assert!(!w.check(1.0 + CAMERA_STALL_S * 0.9));
+        assert!(w.check(1.0 + CAMERA_STALL_S * 1.1));
+        assert!(!w.check(1.0 + CAMERA_STALL_S * 3.0), "one stall, counted once");
+        assert!(w.stalled);
+        w.frame(5.0);
+        assert!(!w.stalled);
+        assert!(w.check(5.0 + CAMERA_STALL_S * 1.1), "a second stall");
+    }
 }

@@ -137,6 +137,90 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
     // Nothing was refused on either side of the radio.
     assert_eq!(v["virtual_vehicle"]["uplink_refused"], 0);
     assert_eq!(s["link_decoder"]["bad_crc"], 0);
+    check_station_log(&dir.join("station"), &s);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Rows of an exported CSV topic (0 when the topic is absent).
+fn csv_rows(dir: &Path, name: &str) -> u64 {
+    std::fs::read_to_string(dir.join(name)).map_or(0, |t| t.lines().count().saturating_sub(1) as u64)
+}
+
+/// The station's flight log holds what station.json counted, `export` turns it into CSV topics on the
+/// station's clock, and `replay` refuses it naming `export`.
+fn check_station_log(out: &Path, s: &Value) {
+    let log = out.join("station.log");
+    let csv = out.join("csv");
+    let r =
+        Command::new(env!("CARGO_BIN_EXE_sim-host")).arg("export").arg(&log).arg("--csv").arg(&csv).output();
+    let r = r.unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert!(!String::from_utf8_lossy(&r.stderr).contains("damage"), "{}", String::from_utf8_lossy(&r.stderr));
+    let n = |k: &str| s[k].as_u64().unwrap();
+    assert_eq!(csv_rows(&csv, "station_uplink_vision.csv"), n("uplink_vision"));
+    assert_eq!(csv_rows(&csv, "station_uplink_flow.csv"), n("uplink_flow"));
+    assert_eq!(csv_rows(&csv, "station_uplink_other.csv"), n("uplink_commands") + n("uplink_other"));
+    assert_eq!(csv_rows(&csv, "station_downlink_telemetry.csv"), n("telemetry"));
+    // One clock record per accepted time-sync answer.
+    let refused: u64 = s["time_sync_refused"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).sum();
+    assert_eq!(csv_rows(&csv, "station_clock.csv"), n("time_sync_answers") - refused);
+    assert!(n("uplink_vision") > 100);
+    // Both clocks: a vision message's station time (Unix, s) and its capture time on the vehicle's clock.
+    let text = std::fs::read_to_string(csv.join("station_uplink_vision.csv")).unwrap();
+    let head: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+    let row: Vec<&str> = text.lines().nth(1).unwrap().split(',').collect();
+    let col =
+        |name: &str| row[head.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name}: {head:?}"))];
+    assert!(col("t_s").parse::<f64>().unwrap() > 1.7e9, "station time since the Unix epoch");
+    assert!(col("capture_time_us").parse::<u64>().unwrap() < 100_000_000, "vehicle time since its start");
+    let r = Command::new(env!("CARGO_BIN_EXE_sim-host")).arg("replay").arg(&log).output().unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(err.contains("ground station's recording") && err.contains("export"), "{err}");
+}
+
+#[test]
+fn a_vehicle_that_does_not_answer_is_named_and_the_log_so_far_kept() {
+    // A radio that connects but never answers (a listener that accepts and stays silent).
+    let dir = std::env::temp_dir().join(format!("station-silent-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let radio = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let camera = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let (link, forward) = (radio.local_addr().unwrap(), camera.local_addr().unwrap());
+    let silent = std::thread::spawn(move || {
+        let a = radio.accept();
+        let b = camera.accept();
+        std::thread::sleep(Duration::from_secs(3));
+        drop((a, b));
+    });
+    let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args(["station", "--link", &format!("tcp:{link}"), "--forward", &format!("tcp:{forward}")])
+        .args(["--answer-timeout", "1"])
+        .arg("--out")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    silent.join().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("did not answer") && err.contains("station.log") && !err.contains("panicked"),
+        "{err}"
+    );
+    // The log of the second it waited: complete (its end record), the heartbeats and time-sync requests sent.
+    let csv = dir.join("csv");
+    let r = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .arg("export")
+        .arg(dir.join("station.log"))
+        .arg("--csv")
+        .arg(&csv)
+        .output()
+        .unwrap();
+    let export_err = String::from_utf8_lossy(&r.stderr);
+    assert!(r.status.success() && !export_err.contains("damage"), "{export_err}");
+    let sent = csv_rows(&csv, "station_uplink_other.csv");
+    assert!((10..=40).contains(&sent), "{sent} heartbeats and time-sync requests in about 1 s");
+    assert_eq!(csv_rows(&csv, "station_downlink_telemetry.csv"), 0);
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -61,8 +61,10 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
             }
             LogRecord::Frame(f) if f.camera == CameraId::Forward => add("/camera/forward", 1),
             LogRecord::Frame(_) => add("/camera/down", 1),
-            // The file's end record has no topic.
+            // The file's end record has no topic; a simulated flight's log has no station records (the
+            // station's export is checked by sim-host/tests/station_e2e.rs).
             LogRecord::End { .. } => {}
+            LogRecord::Station(e) => panic!("a station record in a simulated flight's log: {e:?}"),
         }
     }
     expected.retain(|_, n| *n > 0);

@@ -16,6 +16,16 @@ pub(crate) enum FramesArg {
     None,
 }
 
+impl FramesArg {
+    pub(crate) fn policy(self) -> sim_host::flightlog::FramePolicy {
+        match self {
+            FramesArg::Png => sim_host::flightlog::FramePolicy::Png,
+            FramesArg::Raw => sim_host::flightlog::FramePolicy::Raw,
+            FramesArg::None => sim_host::flightlog::FramePolicy::Drop,
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub(crate) enum CameraSim {
     /// Rendered images through the full vision pipeline.
@@ -140,11 +150,7 @@ pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
         plots: !a.no_plots,
         fc,
         log: !a.no_log,
-        frames: match a.frames {
-            FramesArg::Png => sim_host::flightlog::FramePolicy::Png,
-            FramesArg::Raw => sim_host::flightlog::FramePolicy::Raw,
-            FramesArg::None => sim_host::flightlog::FramePolicy::Drop,
-        },
+        frames: a.frames.policy(),
         serve: match &a.serve_link {
             None => None,
             Some(link) => {

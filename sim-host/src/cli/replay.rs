@@ -69,6 +69,14 @@ pub(crate) fn replay(a: &ReplayArgs) -> Result<ExitCode> {
     let s = replay_stream(&header, &mut items, &opts, writer.as_mut())?;
     let skipped = items.inner.frames_skipped;
     bar.finish_and_clear();
+    if s.steps == 0 && s.station_records > 0 {
+        bail!(
+            "{}: a ground station's recording ({} records of what crossed the radio, on the station's clock) \
+             holds no sensor steps to re-run; `sim-host export` turns it into MCAP or CSV",
+            a.log.display(),
+            s.station_records
+        );
+    }
     let wall = t0.elapsed().as_secs_f64();
     if let Some(w) = writer {
         w.finish()?;

@@ -37,7 +37,13 @@ pub(crate) struct StationArgs {
     /// How long to wait for the vehicle's first telemetry (s).
     #[arg(long, default_value_t = 10.0)]
     pub(crate) answer_timeout: f64,
-    /// Output directory (station.json: what was sent and received, the clock sync, the latency).
+    /// Camera frames in the station's flight log: `none` (the default: the measurements only), `png` or
+    /// `raw` (the frames the station measured, at their capture time on the vehicle's clock).
+    #[arg(long, value_enum, default_value = "none")]
+    pub(crate) frames: super::fly::FramesArg,
+    /// Output directory: station.json (what was sent and received, the clock sync, the latency) and
+    /// station.log (the flight log of the run: every message sent and received with the station's time, the
+    /// clock sync; `sim-host export` reads it), written also when the run ends on an error.
     #[arg(long)]
     pub(crate) out: PathBuf,
 }
@@ -46,9 +52,10 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
     use ground_station::operator::MissionScript;
     let mut scenario = Scenario::load(&a.scenario)?;
     let out_file = a.out.join("station.json");
+    let log_file = a.out.join("station.log");
     let mut inputs = vec![std::path::Path::new(&a.scenario)];
     inputs.extend(a.calib_forward.as_deref());
-    sim_host::files::refuse_overwrites(&[out_file.as_path()], &inputs)?;
+    sim_host::files::refuse_overwrites(&[out_file.as_path(), log_file.as_path()], &inputs)?;
     if let Some(path) = &a.calib_forward {
         let cal = ground_station::calib::load(path).map_err(anyhow::Error::msg)?;
         let c = &mut scenario.forward_camera;
@@ -73,6 +80,8 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
         script,
         duration_s: a.duration,
         answer_timeout_s: a.answer_timeout,
+        log: log_file.clone(),
+        frames: a.frames.policy(),
     };
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     // Ctrl-C ends the run with station.json written (the motors are the vehicle's: a real operator lands or
@@ -99,6 +108,6 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
         st.frame_to_uplink_ms[0],
         st.frame_to_uplink_ms[1]
     );
-    eprintln!("wrote:\n  {}", out_file.display());
+    eprintln!("wrote:\n  {}\n  {} ({} records)", out_file.display(), log_file.display(), st.log_records);
     Ok(ExitCode::SUCCESS)
 }

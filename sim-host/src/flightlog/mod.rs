@@ -31,7 +31,10 @@ use std::path::{Path, PathBuf};
 /// The file's first bytes.
 pub const LOG_MAGIC: &[u8; 6] = b"WLQLOG";
 /// Version of the log layout (header and record kinds).
-pub const LOG_FORMAT_VERSION: u16 = 5;
+pub const LOG_FORMAT_VERSION: u16 = 6;
+/// The record schema of format 5, whose records are those of format 6 without [`LogRecord::Station`] (same
+/// variant indices and fields): such logs are read as they are.
+pub const SCHEMA_HASH_FORMAT_5: &str = "af873cc779970bb0";
 /// The longest record frame a reader accepts (a raw 4K RGB frame fits): longer ones are damage.
 pub const MAX_LOG_FRAME: usize = 64 << 20;
 /// File name `sim-host fly` writes in its output directory.
@@ -74,6 +77,51 @@ pub enum LogRecord {
         /// CRC-32 of their bytes.
         crc32: u32,
     },
+    /// What a ground station sent and received over the radio, on its own clock (`sim-host station`; format
+    /// 6).
+    Station(StationEvent),
+}
+
+/// A ground station's record of the radio: each message with the station's time (us since the Unix epoch),
+/// and the clock sync's mapping to the vehicle's clock, so that both clocks' times of everything are known.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
+pub enum StationEvent {
+    /// A message sent up the radio, when it left. Measurements carry their capture time on the vehicle's
+    /// clock (as mapped by the clock sync).
+    Sent {
+        /// Station time (us).
+        station_time_us: u64,
+        /// The message.
+        message: Uplink,
+    },
+    /// A message from the vehicle, when its last byte arrived.
+    Received {
+        /// Station time (us).
+        station_time_us: u64,
+        /// The message.
+        message: Downlink,
+    },
+    /// The clock sync after a time-sync answer it accepted: the vehicle's clock read `vehicle_time_us` at
+    /// `station_time_us`, within `bound_us`.
+    Clock {
+        /// Station time (us).
+        station_time_us: u64,
+        /// The vehicle's time then (us).
+        vehicle_time_us: u64,
+        /// The error bound (us).
+        bound_us: u32,
+    },
+}
+
+impl StationEvent {
+    /// The station's time of the event (us since the Unix epoch).
+    pub fn station_time_us(&self) -> u64 {
+        match self {
+            StationEvent::Sent { station_time_us, .. }
+            | StationEvent::Received { station_time_us, .. }
+            | StationEvent::Clock { station_time_us, .. } => *station_time_us,
+        }
+    }
 }
 
 /// A reference state at a time, in this project's frames (world `W`, body FLU).
@@ -101,6 +149,7 @@ impl LogRecord {
             LogRecord::Downlink(_) => "downlink",
             LogRecord::Reference(_) => "reference",
             LogRecord::End { .. } => "end",
+            LogRecord::Station(_) => "station",
         }
     }
 }
@@ -364,8 +413,12 @@ impl LogWriter {
     }
 
     /// Writes the header to `out`, then the records (a log on a given file, e.g. one with little space).
+    /// The header's format version and schema hash are the writer's own (a replay of an older log writes
+    /// this version).
     pub fn create_on(mut out: crate::files::AtomicFile, header: &LogHeader) -> Result<Self> {
-        let head = header_bytes(header)?;
+        let header =
+            LogHeader { format_version: LOG_FORMAT_VERSION, schema_hash: schema_hash(), ..header.clone() };
+        let head = header_bytes(&header)?;
         out.write_all(&head)?;
         Ok(Self { out, records: 0, bytes: head.len() as u64, crc: crc32fast::Hasher::new() })
     }

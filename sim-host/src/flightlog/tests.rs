@@ -112,11 +112,7 @@ fn a_log_cut_at_a_record_boundary_is_damage_not_a_shorter_flight() {
     let mut extra = bytes.clone();
     extra.extend(record_frame(&LogRecord::Link(Uplink::Heartbeat)).unwrap());
     let log = parse_log(&extra).unwrap();
-    assert!(
-        log.damage.iter().any(|d| d.what.contains("after the end-of-log record")),
-        "{:?}",
-        log.damage
-    );
+    assert!(log.damage.iter().any(|d| d.what.contains("after the end-of-log record")), "{:?}", log.damage);
 }
 
 #[test]
@@ -201,16 +197,16 @@ fn a_full_disk_keeps_what_was_written() {
 #[test]
 fn golden_bytes_of_the_header_and_the_schema_hash() {
     let b = header_bytes(&sample_header()).unwrap();
-    // "WLQLOG", version 5 (u16 LE), JSON length (u32 LE), the JSON, its CRC-32 (u32 LE).
-    assert_eq!(&b[..8], b"WLQLOG\x05\x00");
+    // "WLQLOG", version 6 (u16 LE), JSON length (u32 LE), the JSON, its CRC-32 (u32 LE).
+    assert_eq!(&b[..8], b"WLQLOG\x06\x00");
     let len = u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize;
     assert_eq!(b.len(), 16 + len);
     let json = &b[12..12 + len];
-    assert!(std::str::from_utf8(json).unwrap().starts_with("{\"format_version\":5,\"schema_hash\":\""));
+    assert!(std::str::from_utf8(json).unwrap().starts_with("{\"format_version\":6,\"schema_hash\":\""));
     assert_eq!(b[12 + len..], crc32fast::hash(json).to_le_bytes());
     assert_eq!(crc32fast::hash(b"123456789"), 0xCBF4_3926, "CRC-32 (IEEE) check value");
     // The schema fingerprint of this version's records: any change to a record's fields changes it.
-    assert_eq!(schema_hash(), "af873cc779970bb0");
+    assert_eq!(schema_hash(), "d8b3588dab78abd8");
 }
 
 #[test]
@@ -229,4 +225,63 @@ fn small_records_frame_exactly_as_the_radio_link_does() {
         let link = protocol::frame::encode(&r, &mut buf).unwrap().to_vec();
         assert_eq!(record_frame(&r).unwrap(), link);
     }
+}
+
+#[test]
+fn golden_bytes_of_station_records() {
+    // Body 01 | 08 (Station) 00 (Sent) E8 07 (station time 1000) 02 (Heartbeat) | CRC-16 0xF9D8; COBS
+    // [03 01 08] [06 E8 07 02 D8 F9]; delimiter.
+    let sent = LogRecord::Station(StationEvent::Sent { station_time_us: 1000, message: Uplink::Heartbeat });
+    assert_eq!(hex(&record_frame(&sent).unwrap()), "03 01 08 06 E8 07 02 D8 F9 00");
+    assert_eq!(crc16(&[1, 8, 0, 0xE8, 7, 2]), 0xF9D8);
+    // Clock: 08 02, station time 5, vehicle time 7, bound 300 = AC 02 (varints) | CRC-16 0x41EA.
+    let clock =
+        LogRecord::Station(StationEvent::Clock { station_time_us: 5, vehicle_time_us: 7, bound_us: 300 });
+    assert_eq!(hex(&record_frame(&clock).unwrap()), "0A 01 08 02 05 07 AC 02 EA 41 00");
+    assert_eq!(crc16(&[1, 8, 2, 5, 7, 0xAC, 2]), 0x41EA);
+    assert_eq!((sent.kind(), clock.kind()), ("station", "station"));
+    // A received message: 08 01, the time, then the Downlink as on the radio.
+    let ack = Downlink::CommandAck(control_core::CommandResult::Accepted(control_core::Command::Arm));
+    let received = LogRecord::Station(StationEvent::Received { station_time_us: 1, message: ack });
+    let mut payload = vec![8, 1, 1];
+    payload.extend(postcard::to_allocvec(&ack).unwrap());
+    let framed = record_frame(&received).unwrap();
+    let mut body = framed[..framed.len() - 1].to_vec();
+    let n = cobs_decode_in_place(&mut body).unwrap();
+    assert_eq!(&body[1..n - 2], &payload[..]);
+}
+
+#[test]
+fn a_format_5_log_reads_as_it_was_written() {
+    // Format 5 is format 6 without the station's records: its header (version 5, its schema hash) and
+    // records read unchanged.
+    let mut header = sample_header();
+    header.format_version = 5;
+    header.schema_hash = SCHEMA_HASH_FORMAT_5.into();
+    let json = serde_json::to_vec(&header).unwrap();
+    let mut bytes = b"WLQLOG\x05\x00".to_vec();
+    bytes.extend((json.len() as u32).to_le_bytes());
+    bytes.extend(&json);
+    bytes.extend(crc32fast::hash(&json).to_le_bytes());
+    let hb = record_frame(&LogRecord::Link(Uplink::Heartbeat)).unwrap();
+    bytes.extend(&hb);
+    bytes.extend(record_frame(&end_record(&hb)).unwrap());
+    let log = parse_log(&bytes).unwrap();
+    assert!(log.damage.is_empty(), "{:?}", log.damage);
+    assert_eq!(log.records.len(), 2);
+    assert_eq!(log.header.format_version, 5);
+    // With another schema hash, or as another version, it is refused naming the byte.
+    let mut bad = bytes.clone();
+    bad[6] = 7;
+    let e = parse_log(&bad).unwrap_err().to_string();
+    assert!(e.contains("version 7 at byte 6"), "{e}");
+    let mut h6 = header.clone();
+    h6.schema_hash = schema_hash();
+    let json6 = serde_json::to_vec(&h6).unwrap();
+    let mut bad = b"WLQLOG\x05\x00".to_vec();
+    bad.extend((json6.len() as u32).to_le_bytes());
+    bad.extend(&json6);
+    bad.extend(crc32fast::hash(&json6).to_le_bytes());
+    let e = parse_log(&bad).unwrap_err().to_string();
+    assert!(e.contains("record schema") && e.contains(SCHEMA_HASH_FORMAT_5), "{e}");
 }
