@@ -155,6 +155,27 @@ fn camera_thread(spec: &str, what: &'static str) -> mpsc::Receiver<Result<(Frame
     rx
 }
 
+/// A forward camera's frame as the image the vision measures: RGB, of the calibration's size.
+pub fn forward_image(f: Frame, camera: &vision_core::CameraModel) -> Result<RgbImage> {
+    if f.channels != 3 {
+        bail!("the forward stream sent a {}-channel frame; RGB expected", f.channels);
+    }
+    ground_station::calib::check_size(camera, f.width, f.height)
+        .map_err(|e| anyhow::anyhow!("the forward camera: {e}"))?;
+    Ok(RgbImage { width: f.width, height: f.height, data: f.data })
+}
+
+/// The measurement of a forward frame captured at `vehicle_us` on the vehicle's clock (the line's edges, or
+/// none), as it goes up the radio.
+pub fn measure_forward(
+    vision: &mut GroundVision,
+    img: &RgbImage,
+    vehicle_us: u64,
+    frame_seq: u32,
+) -> VisionMeasurement {
+    VisionMeasurement { capture_time_us: vehicle_us, frame_seq, observation: vision.detect(img).ok() }
+}
+
 /// A camera silent for this long is stalled (counted once per stall; 15 frames at 30 Hz).
 pub const CAMERA_STALL_S: f64 = 0.5;
 
@@ -272,6 +293,7 @@ fn station_loop(
     let (mut forward_watch, mut down_watch) = (StallWatch::default(), StallWatch::default());
 
     let mut vision = GroundVision::new(scenario);
+    let forward_camera = scenario.forward_camera_model();
     let mut flow = down.as_ref().map(|_| GroundFlow::new(scenario));
     let mut clock = ClockSync::default().with_answer_period((1e6 / scenario.mission.control_rate_hz) as u64);
     let mut operator = Operator::new(opts.script);
@@ -370,19 +392,13 @@ fn station_loop(
                 stats.frames_before_clock += 1;
                 continue;
             };
-            if f.channels != 3 {
-                bail!("the forward stream sent a {}-channel frame; RGB expected", f.channels);
-            }
-            ground_station::calib::check_size(&scenario.forward_camera_model(), f.width, f.height)
-                .map_err(|e| anyhow::anyhow!("the forward camera: {e}"))?;
-            let img = RgbImage { width: f.width, height: f.height, data: f.data };
             let frame_seq = f.seq.unwrap_or(stats.forward_frames) as u32;
+            let img = forward_image(f, &forward_camera)?;
             if let Some(enc) = rec.frames {
                 rec.frame(CameraFrame::rgb(frame_seq, vehicle_us, &img, enc))?;
             }
-            let observation = vision.detect(&img).ok();
-            stats.forward_measured += observation.is_some() as u64;
-            let m = VisionMeasurement { capture_time_us: vehicle_us, frame_seq, observation };
+            let m = measure_forward(&mut vision, &img, vehicle_us, frame_seq);
+            stats.forward_measured += m.observation.is_some() as u64;
             send(&Uplink::Vision(m), &mut writer, rec)?;
             stats.uplink_vision += 1;
             latencies_us.push(now_unix_us().saturating_sub(arrived));
