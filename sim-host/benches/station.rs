@@ -50,11 +50,12 @@ fn main() {
     );
     for (name, encoding) in [("raw part", PartEncoding::Raw), ("PNG part", PartEncoding::Png)] {
         let mut stream = Vec::new();
-        let mut w = StreamWriter::start(&mut stream, encoding).expect("stream head");
-        for f in &frames {
-            w.write(f).expect("part");
+        {
+            let mut w = StreamWriter::start(&mut stream, encoding).expect("stream head");
+            for f in &frames {
+                w.write(f).expect("part");
+            }
         }
-        drop(w);
         let mut reader = StreamReader::start(&stream[..]).expect("stream");
         let mut vision = GroundVision::new(&scenario);
         let mut radio = Vec::with_capacity(1 << 20);
