@@ -11,4 +11,5 @@ pub mod link;
 pub mod operator;
 pub mod source;
 pub mod stream;
+pub mod v4l2;
 pub mod vision;

@@ -2,8 +2,9 @@
 //! recorded folder in the ASL/EuRoC layout ([`FolderSource`]). Each frame carries its capture time on the
 //! station's clock (us since the Unix epoch), which the clock sync maps to the vehicle's.
 //!
-//! A source spec: `tcp:HOST:PORT` or `folder:PATH` (`PATH/data.csv` and `PATH/data/`), with
-//! `folder:PATH@fast` to read a folder as fast as possible instead of at its recorded pace.
+//! A source spec: `tcp:HOST:PORT`, `folder:PATH` (`PATH/data.csv` and `PATH/data/`), with
+//! `folder:PATH@fast` to read a folder as fast as possible instead of at its recorded pace, or a V4L2
+//! device `/dev/videoN` ([`crate::v4l2`], built with the `v4l2` feature).
 use crate::stream::{Frame, StreamError, StreamReader, decode_png};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -13,6 +14,26 @@ pub trait FrameSource: Send {
     /// The next frame (its `timestamp_us` the capture time on the station's clock), `Ok(None)` when the
     /// source ended.
     fn next_frame(&mut self) -> Result<Option<Frame>, StreamError>;
+
+    /// What the source delivered and lost so far (a live camera's dropped and undecodable frames).
+    fn counters(&self) -> crate::v4l2::CaptureCounters {
+        crate::v4l2::CaptureCounters::default()
+    }
+}
+
+/// What the station needs of a camera: the calibration's image size, the channels its vision reads (3 for
+/// the forward camera, 1 for the downward one) and the camera's rate. A live camera is set to it; a recorded
+/// or streamed one is checked against it frame by frame by the station.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SourceWant {
+    /// Width (px).
+    pub width: usize,
+    /// Height (px).
+    pub height: usize,
+    /// Channels (1 grey, 3 RGB).
+    pub channels: usize,
+    /// Frames per second.
+    pub rate_hz: f64,
 }
 
 impl<R: std::io::Read + Send> FrameSource for StreamReader<R> {
@@ -29,8 +50,8 @@ pub fn now_unix_us() -> u64 {
 /// How long a camera stream's server may take to answer the request.
 pub const STREAM_ANSWER_WITHIN: std::time::Duration = std::time::Duration::from_secs(5);
 
-/// Opens a source from its spec (`tcp:HOST:PORT`, `folder:PATH`, `folder:PATH@fast`).
-pub fn open(spec: &str) -> Result<Box<dyn FrameSource>, String> {
+/// Opens a source from its spec (`tcp:HOST:PORT`, `folder:PATH`, `folder:PATH@fast`, `/dev/videoN`).
+pub fn open(spec: &str, want: SourceWant) -> Result<Box<dyn FrameSource>, String> {
     if spec.starts_with("tcp:") {
         let addr = crate::link::tcp_address(spec)?;
         let r = StreamReader::connect(addr, STREAM_ANSWER_WITHIN)
@@ -42,9 +63,24 @@ pub fn open(spec: &str) -> Result<Box<dyn FrameSource>, String> {
             None => (rest, Pacing::RealTime),
         };
         Ok(Box::new(FolderSource::open(Path::new(path), pace)?))
+    } else if spec.starts_with("/dev/") {
+        open_v4l2(spec, want)
     } else {
-        Err(format!("`{spec}`: tcp:HOST:PORT or folder:PATH expected (V4L2 devices are not supported yet)"))
+        Err(format!("`{spec}`: tcp:HOST:PORT, folder:PATH or a V4L2 device /dev/videoN expected"))
     }
+}
+
+#[cfg(feature = "v4l2")]
+fn open_v4l2(spec: &str, want: SourceWant) -> Result<Box<dyn FrameSource>, String> {
+    Ok(Box::new(crate::v4l2::V4l2Source::open(spec, want)?))
+}
+
+#[cfg(not(feature = "v4l2"))]
+fn open_v4l2(spec: &str, _want: SourceWant) -> Result<Box<dyn FrameSource>, String> {
+    Err(format!(
+        "`{spec}`: this build has no V4L2 capture; build with `--features v4l2` (needs libclang, e.g. the \
+         Debian package libclang-dev)"
+    ))
 }
 
 /// How a recording is played.
@@ -142,6 +178,8 @@ impl FrameSource for FolderSource {
 mod tests {
     use super::*;
 
+    const WANT: SourceWant = SourceWant { width: 4, height: 2, channels: 1, rate_hz: 20.0 };
+
     fn png(w: usize, h: usize, channels: usize, fill: u8) -> Vec<u8> {
         let mut out = Vec::new();
         let mut enc = png::Encoder::new(&mut out, w as u32, h as u32);
@@ -177,7 +215,7 @@ mod tests {
             &csv,
             &[("a.png", png(4, 3, 1, 10)), ("b.png", png(4, 3, 1, 20)), ("c.png", png(4, 3, 3, 30))],
         );
-        let mut src = open(&format!("folder:{}@fast", dir.display())).unwrap();
+        let mut src = open(&format!("folder:{}@fast", dir.display()), WANT).unwrap();
         let before = now_unix_us();
         let a = src.next_frame().unwrap().unwrap();
         let b = src.next_frame().unwrap().unwrap();
@@ -223,9 +261,15 @@ mod tests {
         let mut src = FolderSource::open(&dir, Pacing::AsFastAsPossible).unwrap();
         let e = src.next_frame().unwrap_err().to_string();
         assert!(e.contains("a.png"), "{e}");
-        let e = open(&format!("folder:{}", dir.join("nowhere").display())).err().unwrap();
+        let e = open(&format!("folder:{}", dir.join("nowhere").display()), WANT).err().unwrap();
         assert!(e.contains("nowhere") && e.contains("data.csv"), "{e}");
-        assert!(open("/dev/video0").err().unwrap().contains("V4L2"));
+        // A device that is not there: named (with V4L2 built in), or the build's lack of V4L2 said.
+        let e = open("/dev/video-none", WANT).err().unwrap();
+        assert!(
+            e.contains("/dev/video-none") && (cfg!(feature = "v4l2") || e.contains("--features v4l2")),
+            "{e}"
+        );
+        assert!(open("udp:1.2.3.4:5", WANT).err().unwrap().contains("/dev/videoN"));
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -20,8 +20,9 @@ use control_core::FlightMode;
 use ground_station::clock::ClockSync;
 use ground_station::link::{Link, LinkSpec};
 use ground_station::operator::{MissionScript, Operator};
-use ground_station::source::now_unix_us;
+use ground_station::source::{SourceWant, now_unix_us};
 use ground_station::stream::Frame;
+use ground_station::v4l2::CaptureCounters;
 use protocol::{Downlink, FlowMeasurement, Telemetry, Uplink, VisionMeasurement};
 use std::io::ErrorKind;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -64,6 +65,9 @@ pub struct StationStats {
     pub forward_frames: u64,
     /// Times a camera stream stalled (no frame for [`CAMERA_STALL_S`] after it had sent one): forward, down.
     pub camera_stalls: [u64; 2],
+    /// What each camera (forward, down) delivered and lost at the source: a live camera's buffers, frames
+    /// the kernel numbered but the station never got, buffers flagged damaged, buffers that did not decode.
+    pub camera_counters: [CaptureCounters; 2],
     /// Forward frames in which the line was found.
     pub forward_measured: u64,
     /// Forward frames that arrived before the vehicle's clock was known (not sent).
@@ -121,13 +125,21 @@ impl Recorder {
     }
 }
 
-/// A camera stream opened and read on its own thread (a camera that does not answer does not hold up the
-/// radio): frames with their arrival time; the error that ended it.
-fn camera_thread(spec: &str, what: &'static str) -> mpsc::Receiver<Result<(Frame, u64), String>> {
+/// A camera frame as it arrived: the frame, its arrival time on the station's clock, and the source's
+/// counters then.
+type Arrival = (Frame, u64, CaptureCounters);
+
+/// A camera opened and read on its own thread (a camera that does not answer does not hold up the radio):
+/// frames with their arrival time; the error that ended it.
+fn camera_thread(
+    spec: &str,
+    want: SourceWant,
+    what: &'static str,
+) -> mpsc::Receiver<Result<Arrival, String>> {
     let (tx, rx) = mpsc::sync_channel(8);
     let spec = spec.to_string();
     std::thread::spawn(move || {
-        let mut reader = match ground_station::source::open(&spec) {
+        let mut reader = match ground_station::source::open(&spec, want) {
             Ok(r) => r,
             Err(e) => {
                 let _closed = tx.send(Err(format!("--{what}: {e}")));
@@ -137,7 +149,7 @@ fn camera_thread(spec: &str, what: &'static str) -> mpsc::Receiver<Result<(Frame
         loop {
             match reader.next_frame() {
                 Ok(Some(f)) => {
-                    if tx.send(Ok((f, now_unix_us()))).is_err() {
+                    if tx.send(Ok((f, now_unix_us(), reader.counters()))).is_err() {
                         return;
                     }
                 }
@@ -288,8 +300,17 @@ fn station_loop(
         }
         None
     });
-    let forward = camera_thread(&opts.forward, "forward");
-    let down = opts.down.as_deref().map(|d| camera_thread(d, "down"));
+    let want = |c: &vision_core::CameraModel, channels, rate_hz| SourceWant {
+        width: c.width as usize,
+        height: c.height as usize,
+        channels,
+        rate_hz,
+    };
+    let forward_want = want(&scenario.forward_camera_model(), 3, scenario.forward_camera.rate_hz);
+    let forward = camera_thread(&opts.forward, forward_want, "forward");
+    let down_camera = scenario.down_camera_model();
+    let down_want = want(&down_camera, 1, scenario.down_camera.rate_hz);
+    let down = opts.down.as_deref().map(|d| camera_thread(d, down_want, "down"));
     let (mut forward_watch, mut down_watch) = (StallWatch::default(), StallWatch::default());
 
     let mut vision = GroundVision::new(scenario);
@@ -384,8 +405,9 @@ fn station_loop(
         let mut idle = true;
         while let Ok(r) = forward.try_recv() {
             idle = false;
-            let (f, arrived) = r.map_err(anyhow::Error::msg)?;
+            let (f, arrived, counters) = r.map_err(anyhow::Error::msg)?;
             stats.forward_frames += 1;
+            stats.camera_counters[0] = counters;
             forward_watch.frame(t);
             let stamp = f.timestamp_us.unwrap_or(arrived);
             let Some(vehicle_us) = clock.vehicle_time_us(stamp) else {
@@ -406,8 +428,9 @@ fn station_loop(
         if let (Some(rx), Some(fl)) = (down.as_ref(), flow.as_mut()) {
             while let Ok(r) = rx.try_recv() {
                 idle = false;
-                let (f, arrived) = r.map_err(anyhow::Error::msg)?;
+                let (f, arrived, counters) = r.map_err(anyhow::Error::msg)?;
                 stats.down_frames += 1;
+                stats.camera_counters[1] = counters;
                 down_watch.frame(t);
                 let Some(vehicle_us) = clock.vehicle_time_us(f.timestamp_us.unwrap_or(arrived)) else {
                     continue;

@@ -11,14 +11,16 @@ pub(crate) struct StationArgs {
     /// `tcp:HOST:PORT` (the virtual vehicle's `--serve-link`).
     #[arg(long, value_name = "serial:DEV:BAUD|tcp:HOST:PORT")]
     pub(crate) link: String,
-    /// The forward camera: `tcp:HOST:PORT`, a frame stream (the virtual vehicle's `--serve-forward`, or a
-    /// camera served the same way; docs/ground-station.md), or `folder:PATH` a recording in the ASL/EuRoC
-    /// layout (`PATH/data.csv`, `PATH/data/*.png`) played at its pace (`folder:PATH@fast`: at once).
-    #[arg(long, value_name = "tcp:HOST:PORT|folder:PATH")]
+    /// The forward camera: `/dev/videoN`, a V4L2 webcam (built with `--features v4l2`; set to the
+    /// calibration's size and the camera's rate, MJPEG or YUYV), `tcp:HOST:PORT`, a frame stream (the
+    /// virtual vehicle's `--serve-forward`, or a camera served the same way; docs/ground-station.md), or
+    /// `folder:PATH` a recording in the ASL/EuRoC layout (`PATH/data.csv`, `PATH/data/*.png`) played at its
+    /// pace (`folder:PATH@fast`: at once).
+    #[arg(long, value_name = "/dev/videoN|tcp:HOST:PORT|folder:PATH")]
     pub(crate) forward: String,
     /// The downward camera, when the vehicle has one (without it the vehicle flies without flow); as
     /// `--forward`.
-    #[arg(long, value_name = "tcp:HOST:PORT|folder:PATH")]
+    #[arg(long, value_name = "/dev/videoN|tcp:HOST:PORT|folder:PATH")]
     pub(crate) down: Option<String>,
     /// The forward camera's calibration: OpenCV/ROS camera_info YAML or Kalibr/EuRoC sensor.yaml (default:
     /// the scenario's camera).
