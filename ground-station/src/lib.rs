@@ -7,6 +7,7 @@
 
 pub mod calib;
 pub mod clock;
+pub mod console;
 pub mod link;
 pub mod operator;
 pub mod source;

@@ -18,8 +18,9 @@ use crate::vision::GroundVision;
 use anyhow::{Context, Result, bail};
 use control_core::FlightMode;
 use ground_station::clock::ClockSync;
+use ground_station::console::{ConsoleView, KeyAction};
 use ground_station::link::{Link, LinkSpec};
-use ground_station::operator::{MissionScript, Operator};
+use ground_station::operator::{Operator, Script, command_name};
 use ground_station::source::{SourceWant, now_unix_us};
 use ground_station::stream::Frame;
 use ground_station::v4l2::CaptureCounters;
@@ -44,7 +45,7 @@ pub struct StationOptions {
     /// The line, the cameras (unless calibrations replace them) and the link's rates.
     pub scenario: Scenario,
     /// The operator's script.
-    pub script: MissionScript,
+    pub script: Script,
     /// The longest run (s).
     pub duration_s: f64,
     /// How long to wait for the first telemetry (s).
@@ -103,6 +104,8 @@ pub struct StationStats {
     /// Median and 95th percentile of the time from a forward frame's arrival to its measurement leaving on
     /// the radio (ms).
     pub frame_to_uplink_ms: [f64; 2],
+    /// The operator's own commands (the console's keys), with the station's time (s).
+    pub operator_commands: Vec<(f64, String)>,
     /// Why the station stopped.
     pub ended: String,
     /// Records in the station's flight log.
@@ -167,6 +170,16 @@ fn camera_thread(
     rx
 }
 
+/// What the operator sees and does while the station runs: a progress line, or the console.
+pub trait StationUi {
+    /// The station's state, about ten times a second.
+    fn show(&mut self, view: &ConsoleView);
+    /// The operator's keys since the last call (called at every turn of the station's loop).
+    fn actions(&mut self) -> Vec<KeyAction> {
+        Vec::new()
+    }
+}
+
 /// A forward camera's frame as the image the vision measures: RGB, of the calibration's size.
 pub fn forward_image(f: Frame, camera: &vision_core::CameraModel) -> Result<RgbImage> {
     if f.channels != 3 {
@@ -218,7 +231,7 @@ impl StallWatch {
 pub fn run_station(
     opts: &StationOptions,
     stop: Arc<AtomicBool>,
-    progress: impl FnMut(f64, &str),
+    ui: &mut dyn StationUi,
 ) -> Result<StationStats> {
     let header = crate::flightlog::LogHeader {
         format_version: crate::flightlog::LOG_FORMAT_VERSION,
@@ -240,7 +253,7 @@ pub fn run_station(
             FramePolicy::Raw => Some(FrameEncoding::Raw),
         },
     };
-    let result = station_loop(opts, stop, progress, &mut rec);
+    let result = station_loop(opts, stop, ui, &mut rec);
     let records = rec.log.records;
     let kept = rec.log.finish();
     match (result, kept) {
@@ -260,7 +273,7 @@ pub fn run_station(
 fn station_loop(
     opts: &StationOptions,
     stop: Arc<AtomicBool>,
-    mut progress: impl FnMut(f64, &str),
+    ui: &mut dyn StationUi,
     rec: &mut Recorder,
 ) -> Result<StationStats> {
     let scenario = &opts.scenario;
@@ -317,23 +330,23 @@ fn station_loop(
     let forward_camera = scenario.forward_camera_model();
     let mut flow = down.as_ref().map(|_| GroundFlow::new(scenario));
     let mut clock = ClockSync::default().with_answer_period((1e6 / scenario.mission.control_rate_hz) as u64);
-    let mut operator = Operator::new(opts.script);
+    let mut operator = Operator::with_script(opts.script.clone());
+    let mut telemetry_at = 0.0;
     let mut stats = StationStats::default();
     let mut telemetry: Option<Telemetry> = None;
     let mut was_airborne = false;
     let mut latencies_us: Vec<u64> = Vec::new();
     let mut out = [0u8; protocol::frame::MAX_FRAME];
-    let mut sent_bytes = 0u64;
+    let sent_bytes = std::cell::Cell::new(0u64);
     let mut send = |m: &Uplink, w: &mut Box<dyn std::io::Write + Send>, rec: &mut Recorder| -> Result<()> {
         let bytes =
             protocol::frame::encode(m, &mut out).map_err(|e| anyhow::anyhow!("encoding {m:?}: {e:?}"))?;
         w.write_all(bytes).context("the radio")?;
         w.flush().context("the radio")?;
-        sent_bytes += bytes.len() as u64;
+        sent_bytes.set(sent_bytes.get() + bytes.len() as u64);
         rec.event(StationEvent::Sent { station_time_us: now_unix_us(), message: *m })
     };
     let start = Instant::now();
-    let start_us = now_unix_us();
     let mut next_sync = 0.0;
     let mut next_heartbeat = 0.0;
     let mut prev_down: Option<(u64, u32)> = None;
@@ -364,6 +377,7 @@ fn station_loop(
                     }
                     was_airborne |= tm.mode.airborne();
                     telemetry = Some(tm);
+                    telemetry_at = t;
                 }
                 Downlink::TimeSync { station_time_us, vehicle_time_us } => {
                     stats.time_sync_answers += 1;
@@ -397,7 +411,25 @@ fn station_loop(
             stats.uplink_other += 1;
             next_heartbeat += 1.0 / scenario.link.heartbeat_hz;
         }
-        if let Some(c) = operator.tick(now_unix_us() - start_us, telemetry.map(|tm| tm.mode)) {
+        // The operator's keys: a kill before anything else.
+        let mut quit = false;
+        for a in ui.actions() {
+            match a {
+                KeyAction::Kill => {
+                    operator.kill();
+                    stats.operator_commands.push((t, "kill".into()));
+                }
+                KeyAction::Command(c) => {
+                    operator.command(c);
+                    stats.operator_commands.push((t, command_name(Some(c)).into()));
+                }
+                KeyAction::Quit => quit = true,
+            }
+        }
+        // The operator's script runs on the station's monotonic clock (a step of the system clock must not
+        // move it), as does everything the station reports in seconds since its start.
+        let op_us = start.elapsed().as_micros() as u64;
+        if let Some(c) = operator.tick(op_us, telemetry.map(|tm| tm.mode)) {
             send(&Uplink::Command(c), &mut writer, rec)?;
             stats.uplink_commands += 1;
         }
@@ -465,13 +497,29 @@ fn station_loop(
         stats.camera_stalls[1] += down_watch.check(t) as u64;
         if t - last_progress >= 0.1 {
             last_progress = t;
-            let mut status = telemetry.map_or("no telemetry yet".to_string(), |tm| format!("{:?}", tm.mode));
-            for (watch, name) in [(&forward_watch, "forward"), (&down_watch, "down")] {
-                if watch.stalled {
-                    status += &format!(", the {name} camera stalled");
-                }
-            }
-            progress(t, &status);
+            let (refused, received) = decoder_counts.lock().map_or((0, 0), |c| (c.0.errors() as u64, c.1));
+            let lost = |c: &CaptureCounters| c.dropped + c.flagged + c.undecodable;
+            ui.show(&ConsoleView {
+                t_s: t,
+                link: opts.link.to_string(),
+                telemetry: telemetry.map(|tm| (tm, t - telemetry_at)),
+                clock_bound_ms: clock.bound_us().map(|b| b * 1e-3),
+                bytes_per_s: [sent_bytes.get() as f64 / t.max(1e-3), received as f64 / t.max(1e-3)],
+                link_refused: refused,
+                forward_frames: [stats.forward_frames, stats.forward_measured],
+                flow_sent: stats.flow_sent,
+                stalled: [
+                    (forward_watch.stalled, stats.camera_stalls[0]),
+                    (down_watch.stalled, stats.camera_stalls[1]),
+                ],
+                camera_lost: [lost(&stats.camera_counters[0]), lost(&stats.camera_counters[1])],
+                script: if operator.script_running() { "running".into() } else { "ended".into() },
+                acks: stats.command_acks.iter().rev().take(3).rev().cloned().collect(),
+                killed: stats.operator_commands.iter().any(|(_, c)| c == "kill"),
+            });
+        }
+        if quit {
+            break "the operator quit".to_string();
         }
         if idle {
             std::thread::sleep(Duration::from_millis(1));
@@ -489,7 +537,7 @@ fn station_loop(
     stats.time_sync_refused = [cc.acausal, cc.too_slow];
     if let Ok(c) = decoder_counts.lock() {
         stats.link_decoder = c.0;
-        stats.link_bytes = [sent_bytes, c.1];
+        stats.link_bytes = [sent_bytes.get(), c.1];
     }
     latencies_us.sort_unstable();
     let q = |p: f64| {

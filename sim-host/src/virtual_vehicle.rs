@@ -186,10 +186,9 @@ pub fn serve(
     let mut buf = [0u8; 4096];
     let mut out = [0u8; protocol::frame::MAX_FRAME];
     let end_us = (duration_s * 1e6).round() as u64;
+    // The simulation is paced by the monotonic clock from here; frames are stamped on the machine's
+    // system clock at their capture (`capture_stamp`).
     let start = Instant::now();
-    // The simulation is paced by the wall clock from here: a frame captured at the vehicle's time t was
-    // captured at the machine's `start_unix_us + t` (a camera stamps its exposure, not its sending).
-    let start_unix_us = now_unix_us();
     let mut station_gone = false;
     let mut last_progress = 0.0;
     loop {
@@ -226,6 +225,7 @@ pub fn serve(
         }
         // Simulate up to the wall clock (a control period at a time, at most).
         let wall_us = start.elapsed().as_micros() as u64;
+        let unix_us = now_unix_us();
         let mut running = true;
         let mut n = 0;
         while running && (sil.time_s() * 1e6) as u64 <= wall_us && n < 50 {
@@ -240,11 +240,11 @@ pub fn serve(
             let down_frames: Vec<(u64, Frame)> = p.down.drain(..).collect();
             let downlink: Vec<Downlink> = p.downlink.drain(..).collect();
             for (t_us, f) in frames {
-                forward.send(f, start_unix_us + t_us);
+                forward.send(f, capture_stamp(unix_us, wall_us, t_us));
             }
             if let Some(d) = down.as_mut() {
                 for (t_us, f) in down_frames {
-                    d.send(f, start_unix_us + t_us);
+                    d.send(f, capture_stamp(unix_us, wall_us, t_us));
                 }
             }
             if !station_gone {
@@ -295,4 +295,33 @@ fn write_all_nonblocking(s: &mut TcpStream, mut bytes: &[u8]) -> std::io::Result
         }
     }
     Ok(())
+}
+
+/// The machine's system-clock time (us since the Unix epoch) of a frame captured at the simulation's
+/// `t_us`, from the system clock `unix_us` read when the pacing clock said `wall_us` (the simulation keeps
+/// `t = wall` within a control period): a camera stamps its exposure on the station's clock, not its
+/// sending. Reading the system clock at every turn, rather than adding `t` to its reading at the start,
+/// follows the system clock when it is slewed: this VM's ran 0.5 % faster than the monotonic clock for a
+/// while, and frames stamped `start + t` drifted 5 ms a second from the station's clock, 20 ms after 4 s,
+/// enough for the fixes to be fused against the wrong attitude and a hover test to crash.
+pub fn capture_stamp(unix_us: u64, wall_us: u64, t_us: u64) -> u64 {
+    (unix_us as i128 - wall_us as i128 + t_us as i128).max(0) as u64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_frame_is_stamped_on_the_system_clock_read_now_not_at_the_start() {
+        // Captured 3 ms of simulation before the pacing clock's reading: 3 ms before the system clock's.
+        assert_eq!(capture_stamp(1_000_000_000, 5_000_000, 4_997_000), 999_997_000);
+        // The system clock slewed 0.5 % fast: after 4 s of pacing it reads 20 ms more than start + 4 s, and
+        // the frame follows it (a stamp of start + t would be 20 ms behind the station's clock).
+        let (start_unix, wall) = (1_000_000_000u64, 4_000_000u64);
+        let unix_now = start_unix + wall + 20_000;
+        assert_eq!(capture_stamp(unix_now, wall, wall), unix_now);
+        // The simulation a little ahead of the pacing clock: after it.
+        assert_eq!(capture_stamp(1_000, 500, 700), 1_200);
+    }
 }

@@ -328,3 +328,57 @@ fn ctrl_c_ends_both_sides_with_their_outputs_written() {
     assert!(log.damage.is_empty(), "{:?}", log.damage);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_script_file_arms_and_its_kill_stops_the_motors_at_once() {
+    let _serial = one_at_a_time();
+    let dir = std::env::temp_dir().join(format!("station-kill-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    std::fs::create_dir_all(&dir).unwrap();
+    let script = dir.join("arm-kill.txt");
+    std::fs::write(&script, "# arm on the ground, then kill\n2.5 arm\n4.5 kill\n").unwrap();
+    let (mut vehicle, ports) =
+        start_vehicle(&dir.join("vehicle"), &["--no-plots", "--no-log", "--duration", "9", "--seed", "3"]);
+    let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args(["station", "--link", &ports["link"], "--forward", &ports["forward"], "--down", &ports["down"]])
+        .arg("--script")
+        .arg(&script)
+        .args(["--duration", "7"])
+        .arg("--out")
+        .arg(dir.join("station"))
+        .output()
+        .unwrap();
+    let vs = wait(&mut vehicle, Duration::from_secs(30), "the virtual vehicle");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(vs.success());
+    let s = read_json(&dir.join("station").join("station.json"));
+    let acks: Vec<&str> = s["command_acks"].as_array().unwrap().iter().map(|a| a.as_str().unwrap()).collect();
+    assert!(acks.iter().any(|a| a.contains("Accepted(Arm)")), "{acks:?}");
+    // The kill: three disarms, the first accepted (the others find the motors already off).
+    assert!(acks.iter().any(|a| a.contains("Accepted(Disarm)")), "{acks:?}");
+    let modes: Vec<(f64, &str)> = s["modes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| (m[0].as_f64().unwrap(), m[1].as_str().unwrap()))
+        .collect();
+    let armed = modes.iter().position(|m| m.1 == "Armed").expect("armed");
+    let (t_off, after) = modes[armed + 1];
+    assert_eq!(after, "Disarmed", "{modes:?}");
+    // Disarmed in the first telemetry after the kill (telemetry at 25 Hz, the radio a few ms).
+    assert!((4.5..4.7).contains(&t_off), "disarmed at {t_off} s: {modes:?}, acks {acks:?}");
+    let v = read_json(&dir.join("vehicle").join("summary.json"));
+    assert_eq!(v["crashed"], false);
+    // A script file with a mistake is refused naming the file and the line.
+    std::fs::write(&script, "2.5 arm\n3 fly\n").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args(["station", "--link", "tcp:127.0.0.1:1", "--forward", "tcp:127.0.0.1:1", "--script"])
+        .arg(&script)
+        .arg("--out")
+        .arg(dir.join("bad"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("arm-kill.txt:2: `fly` is not a command"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -1,7 +1,9 @@
 //! `sim-host station`: the ground station for a real or a virtual vehicle.
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::Args;
+use ground_station::console::{ConsoleView, KeyAction};
 use sim_host::Scenario;
+use sim_host::station::StationUi;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -30,9 +32,18 @@ pub(crate) struct StationArgs {
     #[arg(long, default_value = "paper")]
     pub(crate) scenario: String,
     /// The operator's script: `paper` (arm at 1 s, take off at 2 s, sweep after 2 s of hover, land when
-    /// done), or `hover` (the same without the sweep: land after the hover).
-    #[arg(long, default_value = "paper", value_name = "paper|hover")]
+    /// done), `hover` (the same without the sweep: land after the hover), `manual` (nothing: the console's
+    /// keys only), or a FILE of timed commands, a line each: `SECONDS COMMAND` with the commands arm,
+    /// takeoff, track, stop, land, disarm and kill (`#` comments). A command of the operator's own, or a
+    /// kill, ends the script.
+    #[arg(long, default_value = "paper", value_name = "paper|hover|manual|FILE")]
     pub(crate) script: String,
+    /// The operator's console in the terminal instead of a progress line: the vehicle's mode, failsafe,
+    /// estimate and setpoint (from its telemetry), the radio, the clock sync and the cameras, and keys: a
+    /// arm, t take off, s sweep, h hover, l land, d disarm, k or space KILL (motors off at once, in any
+    /// mode, no confirmation), q quit.
+    #[arg(long)]
+    pub(crate) console: bool,
     /// The longest run (s).
     #[arg(long, default_value_t = 300.0)]
     pub(crate) duration: f64,
@@ -51,12 +62,13 @@ pub(crate) struct StationArgs {
 }
 
 pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
-    use ground_station::operator::MissionScript;
+    use ground_station::operator::{MissionScript, Script, parse_script};
     let mut scenario = Scenario::load(&a.scenario)?;
     let out_file = a.out.join("station.json");
     let log_file = a.out.join("station.log");
     let mut inputs = vec![std::path::Path::new(&a.scenario)];
     inputs.extend(a.calib_forward.as_deref());
+    inputs.push(std::path::Path::new(&a.script));
     sim_host::files::refuse_overwrites(&[out_file.as_path(), log_file.as_path()], &inputs)?;
     if let Some(path) = &a.calib_forward {
         let cal = ground_station::calib::load(path).map_err(anyhow::Error::msg)?;
@@ -68,9 +80,14 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
         scenario.validate().with_context(|| format!("the camera of {}", path.display()))?;
     }
     let script = match a.script.as_str() {
-        "paper" => MissionScript::PAPER,
-        "hover" => MissionScript::HOVER,
-        other => bail!("--script `{other}`: `paper` or `hover`"),
+        "paper" => Script::Mission(MissionScript::PAPER),
+        "hover" => Script::Mission(MissionScript::HOVER),
+        "manual" => Script::Manual,
+        file => {
+            let text = std::fs::read_to_string(file)
+                .with_context(|| format!("--script `{file}`: paper, hover, manual or a script file"))?;
+            Script::Timed(parse_script(file, &text).map_err(|e| anyhow::anyhow!("--script {e}"))?)
+        }
     };
     let link = ground_station::link::LinkSpec::parse(&a.link).map_err(|e| anyhow::anyhow!("--link {e}"))?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
@@ -91,13 +108,20 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
     let flag = stop.clone();
     ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::Relaxed))
         .context("installing the Ctrl-C handler")?;
-    let bar = super::common::progress_bar(1000, "{spinner} station [{bar:40}] {msg} ({elapsed})");
-    let result = sim_host::station::run_station(&opts, stop, |t, mode| {
-        bar.set_position((t / a.duration * 1000.0).min(1000.0) as u64);
-        bar.set_message(format!("{t:.1} s, vehicle {mode}"));
-    });
-    bar.finish_and_clear();
-    let st = result?;
+    let st = if a.console {
+        let mut ui = ConsoleUi::start()?;
+        let result = sim_host::station::run_station(&opts, stop, &mut ui);
+        drop(ui);
+        result?
+    } else {
+        let mut ui = ProgressUi {
+            bar: super::common::progress_bar(1000, "{spinner} station [{bar:40}] {msg} ({elapsed})"),
+            duration_s: a.duration,
+        };
+        let result = sim_host::station::run_station(&opts, stop, &mut ui);
+        ui.bar.finish_and_clear();
+        result?
+    };
     sim_host::files::write_atomic(&out_file, (serde_json::to_string_pretty(&st)? + "\n").as_bytes())?;
     eprintln!(
         "{}: {:.1} s; forward frames {} ({} with the line), flow {} sent; clock bound {}; frame to radio median {:.2} ms, p95 {:.2} ms",
@@ -112,4 +136,83 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
     );
     eprintln!("wrote:\n  {}\n  {} ({} records)", out_file.display(), log_file.display(), st.log_records);
     Ok(ExitCode::SUCCESS)
+}
+
+/// The progress line: time, the vehicle's mode, stalled cameras.
+struct ProgressUi {
+    bar: indicatif::ProgressBar,
+    duration_s: f64,
+}
+
+impl StationUi for ProgressUi {
+    fn show(&mut self, v: &ConsoleView) {
+        self.bar.set_position((v.t_s / self.duration_s * 1000.0).min(1000.0) as u64);
+        let mut msg = match &v.telemetry {
+            Some((tm, _)) => format!("{:.1} s, vehicle {:?}", v.t_s, tm.mode),
+            None => format!("{:.1} s, no telemetry yet", v.t_s),
+        };
+        for ((stalled, _), name) in v.stalled.iter().zip(["forward", "down"]) {
+            if *stalled {
+                msg += &format!(", the {name} camera stalled");
+            }
+        }
+        self.bar.set_message(msg);
+    }
+}
+
+/// The operator's console (ratatui on crossterm): the terminal in raw mode on the alternate screen, given
+/// back as it was when the console ends (also on a panic: ratatui's hook).
+struct ConsoleUi {
+    terminal: ratatui::DefaultTerminal,
+    /// Draws that failed (a terminal gone): counted, said at the end.
+    draw_errors: u64,
+}
+
+impl ConsoleUi {
+    fn start() -> Result<Self> {
+        let terminal = ratatui::try_init().context("--console: the terminal")?;
+        Ok(Self { terminal, draw_errors: 0 })
+    }
+}
+
+impl Drop for ConsoleUi {
+    fn drop(&mut self) {
+        ratatui::restore();
+        if self.draw_errors > 0 {
+            eprintln!("the console failed to draw {} times", self.draw_errors);
+        }
+    }
+}
+
+impl StationUi for ConsoleUi {
+    fn show(&mut self, v: &ConsoleView) {
+        if self.terminal.draw(|f| ground_station::console::draw(f, v)).is_err() {
+            self.draw_errors += 1;
+        }
+    }
+
+    fn actions(&mut self) -> Vec<KeyAction> {
+        use ratatui::crossterm::event::{self, Event, KeyCode, KeyEventKind, KeyModifiers};
+        let mut out = Vec::new();
+        while event::poll(std::time::Duration::ZERO).unwrap_or(false) {
+            let k = match event::read() {
+                Ok(Event::Key(k)) => k,
+                Ok(_) => continue,
+                // The terminal went away: no more keys (Ctrl-C still ends the station).
+                Err(_) => break,
+            };
+            if k.kind != KeyEventKind::Press {
+                continue;
+            }
+            match k.code {
+                // Raw mode: Ctrl-C is a key, not a signal.
+                KeyCode::Char('c') if k.modifiers.contains(KeyModifiers::CONTROL) => {
+                    out.push(KeyAction::Quit)
+                }
+                KeyCode::Char(c) => out.extend(ground_station::console::key_action(c)),
+                _ => {}
+            }
+        }
+        out
+    }
 }
