@@ -112,14 +112,9 @@ pub fn yuyv_to_image(
     Ok(out)
 }
 
-/// A JPEG (a UVC camera's MJPEG frame, with or without its Huffman tables) as an image of `channels` (1:
-/// grey, 3: RGB), refused unless it is `width` by `height`.
-pub fn mjpeg_to_image(
-    jpeg: &[u8],
-    width: usize,
-    height: usize,
-    channels: usize,
-) -> Result<Vec<u8>, BufferError> {
+/// A JPEG (a file, or a UVC camera's MJPEG frame with or without its Huffman tables) as an image of
+/// `channels` (1: grey, 3: RGB): width, height and the pixels, row by row.
+pub fn decode_jpeg(jpeg: &[u8], channels: usize) -> Result<(usize, usize, Vec<u8>), BufferError> {
     use zune_jpeg::zune_core::bytestream::ZCursor;
     use zune_jpeg::zune_core::colorspace::ColorSpace;
     use zune_jpeg::zune_core::options::DecoderOptions;
@@ -129,6 +124,20 @@ pub fn mjpeg_to_image(
     let mut dec = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(&jpeg[..]), options);
     let pixels = dec.decode().map_err(|e| BufferError::Jpeg(format!("{e:?}")))?;
     let (w, h) = dec.dimensions().ok_or_else(|| BufferError::Jpeg("no image size".into()))?;
+    if pixels.len() != w * h * channels {
+        return Err(BufferError::Jpeg(format!("{} bytes for {w}x{h}x{channels}", pixels.len())));
+    }
+    Ok((w, h, pixels))
+}
+
+/// A UVC camera's MJPEG frame as an image of `channels`, refused unless it is `width` by `height`.
+pub fn mjpeg_to_image(
+    jpeg: &[u8],
+    width: usize,
+    height: usize,
+    channels: usize,
+) -> Result<Vec<u8>, BufferError> {
+    let (w, h, pixels) = decode_jpeg(jpeg, channels)?;
     if (w, h) != (width, height) {
         return Err(BufferError::Size { want: (width, height), got: (w, h) });
     }

@@ -84,7 +84,7 @@ impl std::fmt::Display for ImageIoError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             ImageIoError::Io(e) => write!(f, "cannot read the file: {e}"),
-            ImageIoError::NotPng(e) => write!(f, "not a readable PNG file: {e}"),
+            ImageIoError::NotPng(e) => write!(f, "not a readable PNG or JPEG file: {e}"),
             ImageIoError::Unsupported(e) => write!(f, "unsupported PNG: {e}"),
         }
     }
@@ -137,6 +137,37 @@ fn to_rgb((info, buf): (png::OutputInfo, Vec<u8>)) -> Result<RgbImage, ImageIoEr
         return Err(ImageIoError::NotPng("pixel data shorter than the header says".into()));
     }
     Ok(RgbImage { width: w, height: h, data })
+}
+
+/// Whether the bytes start as a JPEG does (SOI and a marker).
+pub fn is_jpeg(bytes: &[u8]) -> bool {
+    bytes.len() > 3 && bytes[..3] == [0xFF, 0xD8, 0xFF]
+}
+
+fn read_bytes(path: &Path) -> Result<Vec<u8>, ImageIoError> {
+    std::fs::read(path).map_err(ImageIoError::Io)
+}
+
+/// Reads a PNG or a JPEG (a webcam's frame) as RGB; grey images are refused as by [`read_png_rgb`].
+pub fn read_image_rgb(path: &Path) -> Result<RgbImage, ImageIoError> {
+    let bytes = read_bytes(path)?;
+    if !is_jpeg(&bytes) {
+        return rgb_from_png(&bytes);
+    }
+    let (width, height, data) = ground_station::v4l2::decode_jpeg(&bytes, 3)
+        .map_err(|e| ImageIoError::NotPng(format!("a JPEG that does not decode: {e}")))?;
+    Ok(RgbImage { width, height, data })
+}
+
+/// Reads a PNG or a JPEG as 8-bit grey (a JPEG's luma).
+pub fn read_image_gray(path: &Path) -> Result<GrayImage, ImageIoError> {
+    let bytes = read_bytes(path)?;
+    if !is_jpeg(&bytes) {
+        return gray_from_png(&bytes);
+    }
+    let (width, height, data) = ground_station::v4l2::decode_jpeg(&bytes, 1)
+        .map_err(|e| ImageIoError::NotPng(format!("a JPEG that does not decode: {e}")))?;
+    Ok(GrayImage { width, height, data })
 }
 
 /// Rec. 601 luma of an 8-bit RGB pixel, rounded.

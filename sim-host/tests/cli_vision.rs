@@ -150,3 +150,43 @@ fn help_exits_0() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("render") && text.contains("vision"));
 }
+
+#[test]
+fn pose_and_flow_read_jpeg_frames_as_webcams_deliver_them() {
+    // The rendered frame as a webcam's JPEG (quality 90, 4:2:2 with the chroma of each pair averaged).
+    let png = render("1.15,1.45,0.8,2,-3,4", "for-jpeg.png", &["--seed", "6"]);
+    let img = sim_host::imageio::read_png_rgb(&png).unwrap();
+    let mut bytes = Vec::new();
+    let mut enc = jpeg_encoder::Encoder::new(&mut bytes, 90);
+    enc.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_2_2);
+    enc.set_chroma_subsampling_method(jpeg_encoder::ChromaSubsamplingMethod::Average);
+    enc.encode(&img.data, img.width as u16, img.height as u16, jpeg_encoder::ColorType::Rgb).unwrap();
+    let jpg = tmp("frame.jpg");
+    std::fs::write(&jpg, &bytes).unwrap();
+    let out = run(&["vision", "pose", "--image", jpg.to_str().unwrap(), "--attitude", "2,-3"]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let j = json(&out);
+    let p = &j["position_m"];
+    let (x, y, z) = (p["x"].as_f64().unwrap(), p["y"].as_f64().unwrap(), p["z"].as_f64().unwrap());
+    assert!((x - 1.15).abs() < 0.02 && (y - 1.45).abs() < 0.02 && (z - 0.8).abs() < 0.02, "{j}");
+    // Flow between two JPEG frames of the downward camera (the same frame twice: no motion).
+    let down = tmp("down.png");
+    let r =
+        run(&["render", "--camera", "down", "--pose", "0.5,1.0,0.7,0,0,0", "--out", down.to_str().unwrap()]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let g = sim_host::imageio::read_png_gray(&down).unwrap();
+    let mut bytes = Vec::new();
+    jpeg_encoder::Encoder::new(&mut bytes, 90)
+        .encode(&g.data, g.width as u16, g.height as u16, jpeg_encoder::ColorType::Luma)
+        .unwrap();
+    let djpg = tmp("down.jpg");
+    std::fs::write(&djpg, &bytes).unwrap();
+    let out = run(&["vision", "flow", "--prev", djpg.to_str().unwrap(), "--next", djpg.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    // A file that is neither: named as such.
+    let bad = tmp("bad.jpg");
+    std::fs::write(&bad, [0xFF, 0xD8, 0xFF, 0xE0, 1, 2, 3]).unwrap();
+    let out = run(&["vision", "pose", "--image", bad.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("bad.jpg") && err.contains("JPEG"), "{err}");
+}

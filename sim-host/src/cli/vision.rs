@@ -5,7 +5,7 @@ use clap::{Args, Subcommand, ValueEnum};
 use geometry::{Vec3, deg};
 use sim_host::Scenario;
 use sim_host::downward::{GroundFlow, flow_json, no_flow_json};
-use sim_host::imageio::{GrayImage, read_png_gray, read_png_rgb, write_png_rgb};
+use sim_host::imageio::{GrayImage, read_image_gray, read_image_rgb, write_png_rgb};
 use sim_host::vision::{GroundVision, PoseMethod, draw_overlay, no_target_json, pose_json};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -27,7 +27,7 @@ pub(crate) enum VisionCommand {
 
 #[derive(Args, Debug)]
 pub(crate) struct FlowArgs {
-    /// The earlier frame (PNG; colour is converted to grey).
+    /// The earlier frame (PNG or JPEG; colour is converted to grey).
     #[arg(long)]
     pub(crate) prev: PathBuf,
     /// The later frame.
@@ -60,7 +60,7 @@ pub(crate) enum MethodChoice {
 
 #[derive(Args, Debug)]
 pub(crate) struct PoseArgs {
-    /// The frame (PNG, RGB or RGBA).
+    /// The frame (PNG, RGB or RGBA; or JPEG, as webcams deliver).
     #[arg(long)]
     pub(crate) image: PathBuf,
     /// Roll and pitch of the vehicle from the IMU, in degrees: selects the IMU-aided solver.
@@ -84,7 +84,7 @@ pub(crate) fn vision_pose(a: &PoseArgs) -> Result<ExitCode> {
         sim_host::files::refuse_overwrite(overlay, &[&a.image, std::path::Path::new(&a.scenario)])?;
     }
     let scenario = Scenario::load(&a.scenario)?;
-    let mut img = read_png_rgb(&a.image).with_context(|| format!("{}", a.image.display()))?;
+    let mut img = read_image_rgb(&a.image).with_context(|| format!("{}", a.image.display()))?;
     let cam = scenario.forward_camera_model();
     if img.width != cam.width as usize || img.height != cam.height as usize {
         bail!(
@@ -139,7 +139,7 @@ pub(crate) fn vision_flow(a: &FlowArgs) -> Result<ExitCode> {
     let scenario = Scenario::load(&a.scenario)?;
     let cam = scenario.down_camera_model();
     let load = |p: &PathBuf| -> Result<GrayImage> {
-        let img = read_png_gray(p).with_context(|| format!("{}", p.display()))?;
+        let img = read_image_gray(p).with_context(|| format!("{}", p.display()))?;
         if img.width != cam.width as usize || img.height != cam.height as usize {
             bail!(
                 "{}: the image is {}x{} but the scenario's downward camera is {}x{}",
