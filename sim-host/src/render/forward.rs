@@ -11,7 +11,7 @@ use super::texture::{Texture, TextureKind};
 use crate::imageio::RgbImage;
 use crate::rng::{NormalTable, splitmix64};
 use crate::scenario::Scenario;
-use anyhow::{Result, bail};
+use anyhow::Result;
 use geometry::{Mat3, Vec3};
 use rayon::prelude::*;
 
@@ -93,6 +93,8 @@ pub struct ForwardRenderer {
     stack: TextureStack,
     noise: Vec<i8>,
     defaults: RenderSettings,
+    /// The lens, when the camera's distortion is not zero (`super::lens`).
+    lens: Option<Box<super::lens::Lens>>,
 }
 
 /// Standard-normal noise is stored as `round(32 n)` in an `i8` (clipped at +-3.97 sigma).
@@ -190,9 +192,7 @@ impl ForwardRenderer {
     /// Prepares the scene of a scenario (bakes the textures).
     pub fn new(s: &Scenario) -> Result<Self> {
         let c = &s.forward_camera;
-        if c.distortion.iter().any(|&d| d != 0.0) {
-            bail!("the forward renderer models an ideal pinhole: set forward_camera.distortion to zeros");
-        }
+        let lens = super::lens::Lens::new(s)?.map(Box::new);
         let t = s.line_target();
         let sc = &s.scene;
         let mut painted = Vec::new();
@@ -245,6 +245,7 @@ impl ForwardRenderer {
                 x0,
             ),
             noise: noise_buffer(3 * c.width_px as usize * c.height_px as usize),
+            lens,
             defaults: RenderSettings {
                 light_gain: sc.light_gain,
                 light_gradient_per_m: sc.light_gradient_per_m,
@@ -263,6 +264,19 @@ impl ForwardRenderer {
     /// Renders the view of a camera with world-from-camera rotation `r_wc` and centre `center` (world).
     pub fn render(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings) -> RgbImage {
         let mut img = RgbImage::new(self.width, self.height);
+        if let Some(lens) = &self.lens {
+            // Through the lens: the resampled pinhole image, then blur, noise and quantisation here.
+            let mut linear = lens.render_linear(r_wc, center, settings);
+            if settings.blur_sigma_px > 0.0 {
+                gaussian_blur_rgb(&mut linear, self.width, self.height, settings.blur_sigma_px);
+            }
+            let sigma = settings.noise_sigma as f32 / NOISE_SCALE;
+            let noise = self.noise_block(settings.seed);
+            for ((o, p), n) in img.data.iter_mut().zip(&linear).zip(noise) {
+                *o = quantise(p + sigma * *n as f32);
+            }
+            return img;
+        }
         let rw = to64(r_wc);
         let c = [center.x as f64, center.y as f64, center.z as f64];
         let polys: Vec<(Poly, [f32; 3], i64, i64)> = self

@@ -1,6 +1,7 @@
 //! Camera renderers: the source of truth for the vision tests and the simulator's cameras.
 pub mod down;
 pub mod forward;
+mod lens;
 pub mod polygon;
 pub mod texture;
 
