@@ -601,6 +601,25 @@ impl FailsafeParams {
 }
 
 params_struct! {
+    /// What the vehicle sends down the radio.
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
+    #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
+    #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+    pub struct DownlinkParams in ["downlink"] {
+        /// Telemetry every this many control steps (20: 25 Hz at 500 Hz). A ground station on a slow radio
+        /// (a 57600-baud modem) sets it higher over the link: its compact mode.
+        telemetry_every_steps: u8 = 20, { >= 1, <= 100 } "steps";
+    }
+}
+
+impl DownlinkParams {
+    fn validate(&self) -> Result<(), ParamError> {
+        self.check_declared(0)
+    }
+}
+
+params_struct! {
     /// Everything the flight code needs.
     #[derive(Clone, Copy, Debug, PartialEq)]
     #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
@@ -616,6 +635,8 @@ params_struct! {
         trajectory: TrajectoryParams = TrajectoryParams::default(), { section } "";
         /// Failsafes.
         failsafe: FailsafeParams = FailsafeParams::default(), { section } "";
+        /// The downlink.
+        downlink: DownlinkParams = DownlinkParams::default(), { section } "";
         /// Where the vehicle waits on the ground before take-off, world frame (m): the estimator's position
         /// until the first vision fix.
         home_m: [f32; 3] = [0.0; 3], { >= -1000.0, <= 1000.0 } "m";
@@ -636,6 +657,7 @@ impl FlightParams {
         self.estimator.validate()?;
         self.trajectory.validate()?;
         self.failsafe.validate()?;
+        self.downlink.validate()?;
         self.check_declared(0)
     }
 }
@@ -756,6 +778,8 @@ param_ids! {
     LinkLandAfter = "failsafe.link_land_after_s", real => [failsafe.link_land_after_s];
     /// `vehicle.mass_kg`.
     Mass = "vehicle.mass_kg", real => [vehicle.mass_kg];
+    /// `downlink.telemetry_every_steps` (a count: the value is rounded).
+    TelemetryEvery = "downlink.telemetry_every_steps", count => [downlink.telemetry_every_steps];
 }
 
 impl ParamId {
@@ -777,8 +801,12 @@ impl FlightParams {
         if !value.is_finite() {
             return Err(ParamError { field: id.name(), problem: "must be finite" });
         }
+        // Counts are checked before the rounding cast (which would saturate).
         if id == ParamId::TrajectorySweeps && !(0.0..=100.0).contains(&value) {
             return Err(ParamError { field: id.name(), problem: "must lie in 0..=100" });
+        }
+        if id == ParamId::TelemetryEvery && !(0.5..=100.0).contains(&value) {
+            return Err(ParamError { field: id.name(), problem: "must lie in 1..=100" });
         }
         id.write(&mut p, value);
         p.validate()?;
@@ -788,7 +816,7 @@ impl FlightParams {
 
 /// Every declared parameter (sections left out), section by section in the order of the tree.
 pub fn declared() -> impl Iterator<Item = &'static crate::declare::ParamSpec> {
-    let tables: [&'static [crate::declare::ParamSpec]; 11] = [
+    let tables: [&'static [crate::declare::ParamSpec]; 12] = [
         VehicleParams::SPECS[0],
         AltitudeGains::SPECS[0],
         YawGains::SPECS[0],
@@ -799,6 +827,7 @@ pub fn declared() -> impl Iterator<Item = &'static crate::declare::ParamSpec> {
         crate::motion::MotionParams::SPECS[0],
         TrajectoryParams::SPECS[0],
         FailsafeParams::SPECS[0],
+        DownlinkParams::SPECS[0],
         FlightParams::SPECS[0],
     ];
     tables.into_iter().flatten().filter(|s| !s.section)

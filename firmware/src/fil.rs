@@ -45,7 +45,8 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
                 uplink.clear();
                 stats.record_step(cost);
                 stats.mode = out.control.status.mode;
-                downlinks.after_step(&out.control, out.param_reply, out.time_sync, s.time_us, cost, |m| {
+                let every = out.telemetry_every;
+                downlinks.after_step(&out.control, out.param_reply, out.time_sync, s.time_us, cost, every, |m| {
                     link::send(board, &FcToFil::Link(m))
                 });
                 link::send(

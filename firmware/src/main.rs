@@ -118,7 +118,8 @@ fn run(board: &mut board::Board, stack: &mut FlightStack, cfg: &FlightConfig) ->
         if board.set_motors(cmd).is_err() {
             stats.motor_errors += 1;
         }
-        downlinks.after_step(&out.control, out.param_reply, out.time_sync, time_us, step_cost, |m| {
+        let every = out.telemetry_every;
+        downlinks.after_step(&out.control, out.param_reply, out.time_sync, time_us, step_cost, every, |m| {
             link::send(board, &m)
         });
         stats.mode = out.control.status.mode;

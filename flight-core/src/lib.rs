@@ -175,6 +175,9 @@ pub struct StepOutput {
     pub time_sync: Option<u64>,
     /// What the estimator has used and rejected since start.
     pub estimator: control_core::estimator::EstimatorCounters,
+    /// Telemetry every this many steps (the parameter `downlink.telemetry_every_steps` now), for
+    /// [`telemetry::DownlinkSchedule::after_step`].
+    pub telemetry_every: u32,
 }
 
 /// What a step returns, without the pose of this step's frame: what the simulator needs from a flight
@@ -443,6 +446,7 @@ impl FlightStack {
             param_reply,
             time_sync,
             estimator: self.control.estimator().counters(),
+            telemetry_every: self.control.params().downlink.telemetry_every_steps as u32,
         }
     }
 }
@@ -501,9 +505,44 @@ mod tests {
         assert_eq!(out.time_sync, Some(77_000_123));
         assert_eq!(out.report().time_sync, Some(77_000_123));
         let mut sent = std::vec::Vec::new();
-        telemetry::DownlinkSchedule::new()
-            .after_step(&out.control, None, out.time_sync, t, 0, |d| sent.push(d));
+        telemetry::DownlinkSchedule::new().after_step(
+            &out.control,
+            None,
+            out.time_sync,
+            t,
+            0,
+            out.telemetry_every,
+            |d| sent.push(d),
+        );
         assert_eq!(sent, [protocol::Downlink::TimeSync { station_time_us: 77_000_123, vehicle_time_us: t }]);
+        // The telemetry period is a parameter the station sets over the link (its compact mode): the
+        // schedule follows it from the next step.
+        assert_eq!(out.telemetry_every, telemetry::TELEMETRY_EVERY);
+        t += 2000;
+        let out = s.step(&StepInput {
+            time_us: t,
+            imu: &imu(t),
+            mag: None,
+            baro_m: None,
+            uplink: &[Uplink::ParamSet { id: ParamId::TelemetryEvery, value: 50.0 }],
+            landed: None,
+        });
+        assert_eq!(out.param_reply.unwrap().outcome, ParamOutcome::Ok);
+        assert_eq!(out.telemetry_every, 50);
+        let mut schedule = telemetry::DownlinkSchedule::new();
+        let mut telemetry_steps = std::vec::Vec::new();
+        for k in 1..=200u32 {
+            schedule.after_step(&out.control, None, None, t, 0, out.telemetry_every, |d| {
+                if matches!(d, protocol::Downlink::Telemetry(_)) {
+                    telemetry_steps.push(k)
+                }
+            });
+        }
+        assert_eq!(telemetry_steps, [50, 100, 150, 200]);
+        for bad in [0.0, 0.4, 101.0, 1e9] {
+            let r = FlightParams::paper().with(ParamId::TelemetryEvery, bad);
+            assert!(r.is_err(), "{bad} accepted");
+        }
         t += 2000;
         let out = s.step(&StepInput {
             time_us: t,

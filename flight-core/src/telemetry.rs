@@ -5,7 +5,8 @@
 use control_core::{CommandResult, ControlOutputs, ParamReply};
 use protocol::{Downlink, Telemetry};
 
-/// Telemetry period in control steps (25 Hz at the 500 Hz control rate).
+/// The default telemetry period in control steps (25 Hz at the 500 Hz control rate): the parameter
+/// `downlink.telemetry_every_steps`, which a ground station on a slow radio raises.
 pub const TELEMETRY_EVERY: u32 = 20;
 
 /// The downlink schedule: which messages a step produces.
@@ -23,8 +24,10 @@ impl DownlinkSchedule {
 
     /// The messages of one step, in order: the acknowledgement of a command whose outcome changed, the reply
     /// to this step's parameter request, the answer to its clock-synchronisation request (`time_sync`, the
-    /// station time to echo with `time_us`), and every [`TELEMETRY_EVERY`]th step telemetry with the step's
-    /// measured cost (`step_cost`, 0 when not measured).
+    /// station time to echo with `time_us`), and every `telemetry_every`th step (the step output's
+    /// `telemetry_every`, [`TELEMETRY_EVERY`] by default) telemetry with the step's measured cost
+    /// (`step_cost`, 0 when not measured).
+    #[allow(clippy::too_many_arguments)]
     pub fn after_step(
         &mut self,
         control: &ControlOutputs,
@@ -32,6 +35,7 @@ impl DownlinkSchedule {
         time_sync: Option<u64>,
         time_us: u64,
         step_cost: u32,
+        telemetry_every: u32,
         mut send: impl FnMut(Downlink),
     ) {
         self.steps = self.steps.wrapping_add(1);
@@ -48,7 +52,7 @@ impl DownlinkSchedule {
         if let Some(station_time_us) = time_sync {
             send(Downlink::TimeSync { station_time_us, vehicle_time_us: time_us });
         }
-        if self.steps.is_multiple_of(TELEMETRY_EVERY) {
+        if self.steps.is_multiple_of(telemetry_every.max(1)) {
             send(Downlink::Telemetry(Telemetry {
                 time_us,
                 mode: st.mode,

@@ -265,9 +265,15 @@ pub fn replay_stream(
                 first_time.get_or_insert(step.time_us);
                 s.sim_time_s = (step.time_us - first_time.unwrap_or(step.time_us)) as f64 * 1e-6;
                 let report = o.report();
-                schedule.after_step(&o.control, o.param_reply, o.time_sync, step.time_us, 0, |d| {
-                    downlinks.push_back(d)
-                });
+                schedule.after_step(
+                    &o.control,
+                    o.param_reply,
+                    o.time_sync,
+                    step.time_us,
+                    0,
+                    o.telemetry_every,
+                    |d| downlinks.push_back(d),
+                );
                 last = Some((step.time_us, report));
                 // A log without reports (an imported dataset) gets the replayed ones.
                 if writing {

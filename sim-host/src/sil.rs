@@ -883,8 +883,15 @@ impl Sil {
                 // Background work, in the firmware's order: after the step, fused by the next one.
                 stack.solve_pending();
                 // What the vehicle sends down the radio (the firmware's own schedule).
-                self.log_downlinks
-                    .after_step(&o.control, o.param_reply, o.time_sync, self.t_us, 0, |d| downlinks.push(d));
+                self.log_downlinks.after_step(
+                    &o.control,
+                    o.param_reply,
+                    o.time_sync,
+                    self.t_us,
+                    0,
+                    o.telemetry_every,
+                    |d| downlinks.push(d),
+                );
                 o.report()
             }
             Some(Fc::Qemu(q)) => match q.step(&input) {

@@ -33,6 +33,19 @@ use std::time::{Duration, Instant};
 /// Time-sync requests per second.
 pub const TIME_SYNC_HZ: f64 = 10.0;
 
+/// The compact mode, for a radio of 57600 baud (5760 bytes a second, 2880 with the 2x margin): the line
+/// measured in every `COMPACT_VISION_EVERY`th forward frame (10 Hz of 30), the flow over every
+/// `COMPACT_FLOW_EVERY`th downward frame (20 Hz of 60, pairs three frames apart), time sync at
+/// `COMPACT_TIME_SYNC_HZ`, and the vehicle asked (`downlink.telemetry_every_steps`, over the link) for
+/// telemetry every `COMPACT_TELEMETRY_EVERY` steps (10 Hz at 500 Hz). Measured budgets: docs/ground-station.md.
+pub const COMPACT_VISION_EVERY: u64 = 3;
+/// See [`COMPACT_VISION_EVERY`].
+pub const COMPACT_FLOW_EVERY: u64 = 3;
+/// See [`COMPACT_VISION_EVERY`].
+pub const COMPACT_TIME_SYNC_HZ: f64 = 2.0;
+/// See [`COMPACT_VISION_EVERY`].
+pub const COMPACT_TELEMETRY_EVERY: f32 = 50.0;
+
 /// What the station is to do.
 #[derive(Clone, Debug)]
 pub struct StationOptions {
@@ -54,6 +67,8 @@ pub struct StationOptions {
     pub log: std::path::PathBuf,
     /// Camera frames in the log.
     pub frames: FramePolicy,
+    /// The compact mode ([`COMPACT_VISION_EVERY`]).
+    pub compact: bool,
 }
 
 /// What the station counted.
@@ -106,6 +121,11 @@ pub struct StationStats {
     pub frame_to_uplink_ms: [f64; 2],
     /// The operator's own commands (the console's keys), with the station's time (s).
     pub operator_commands: Vec<(f64, String)>,
+    /// The compact mode: whether the vehicle took the telemetry period (`None` without the mode), and the
+    /// frames not measured by its choice (forward, down).
+    pub compact_announced: Option<bool>,
+    /// Frames left out by the compact mode (forward, down).
+    pub compact_skipped: [u64; 2],
     /// Why the station stopped.
     pub ended: String,
     /// Records in the station's flight log.
@@ -348,6 +368,7 @@ fn station_loop(
     };
     let start = Instant::now();
     let mut next_sync = 0.0;
+    let mut next_announce = 0.0;
     let mut next_heartbeat = 0.0;
     let mut prev_down: Option<(u64, u32)> = None;
     let mut last_progress = -1.0;
@@ -391,7 +412,11 @@ fn station_loop(
                     }
                 }
                 Downlink::CommandAck(r) => stats.command_acks.push(format!("{t:.2} s: {r:?}")),
-                Downlink::Param(_) => {}
+                Downlink::Param(r) => {
+                    if opts.compact && r.id == control_core::params::ParamId::TelemetryEvery {
+                        stats.compact_announced = Some(r.outcome == control_core::ParamOutcome::Ok);
+                    }
+                }
             }
         }
         if link_reader.is_finished() {
@@ -404,7 +429,17 @@ fn station_loop(
         if t >= next_sync {
             send(&Uplink::TimeSync { station_time_us: now_unix_us() }, &mut writer, rec)?;
             stats.uplink_other += 1;
-            next_sync += 1.0 / TIME_SYNC_HZ;
+            next_sync += 1.0 / if opts.compact { COMPACT_TIME_SYNC_HZ } else { TIME_SYNC_HZ };
+        }
+        // The compact mode announced: the vehicle's telemetry period, sent once a second until answered.
+        if opts.compact && stats.compact_announced.is_none() && telemetry.is_some() && t >= next_announce {
+            let m = Uplink::ParamSet {
+                id: control_core::params::ParamId::TelemetryEvery,
+                value: COMPACT_TELEMETRY_EVERY,
+            };
+            send(&m, &mut writer, rec)?;
+            stats.uplink_other += 1;
+            next_announce = t + 1.0;
         }
         if t >= next_heartbeat {
             send(&Uplink::Heartbeat, &mut writer, rec)?;
@@ -447,6 +482,10 @@ fn station_loop(
                 continue;
             };
             let frame_seq = f.seq.unwrap_or(stats.forward_frames) as u32;
+            if opts.compact && !(stats.forward_frames - 1).is_multiple_of(COMPACT_VISION_EVERY) {
+                stats.compact_skipped[0] += 1;
+                continue;
+            }
             let img = forward_image(f, &forward_camera)?;
             if let Some(enc) = rec.frames {
                 rec.frame(CameraFrame::rgb(frame_seq, vehicle_us, &img, enc))?;
@@ -467,6 +506,10 @@ fn station_loop(
                 let Some(vehicle_us) = clock.vehicle_time_us(f.timestamp_us.unwrap_or(arrived)) else {
                     continue;
                 };
+                if opts.compact && !(stats.down_frames - 1).is_multiple_of(COMPACT_FLOW_EVERY) {
+                    stats.compact_skipped[1] += 1;
+                    continue;
+                }
                 if f.channels != 1 {
                     bail!("the down stream sent a {}-channel frame; grey expected", f.channels);
                 }

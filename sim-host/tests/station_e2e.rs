@@ -382,3 +382,127 @@ fn a_script_file_arms_and_its_kill_stops_the_motors_at_once() {
     assert!(!out.status.success() && err.contains("arm-kill.txt:2: `fly` is not a command"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A radio at `baud` (8N1: a tenth of it in bytes a second) between a pseudo-terminal, which the station
+/// opens as its serial device, and the virtual vehicle's link port: each direction queued and paced, what
+/// does not fit the radio's buffer dropped and counted, as a SiK-type modem does. Returns the serial
+/// device's path and the counters (bytes carried up and down, bytes dropped).
+fn paced_radio(vehicle_link: &str, baud: u32) -> (String, std::sync::Arc<[std::sync::atomic::AtomicU64; 3]>) {
+    use std::io::{Read, Write};
+    use std::sync::atomic::{AtomicU64, Ordering};
+    use std::sync::{Arc, Mutex};
+    let master =
+        rustix::pty::openpt(rustix::pty::OpenptFlags::RDWR | rustix::pty::OpenptFlags::NOCTTY).unwrap();
+    rustix::pty::grantpt(&master).unwrap();
+    rustix::pty::unlockpt(&master).unwrap();
+    let path = rustix::pty::ptsname(&master, Vec::new()).unwrap().into_string().unwrap();
+    // Raw from the start (no echo, no line editing), held open so that the setting stays until the
+    // station opens the device and sets it again.
+    let slave = std::fs::OpenOptions::new().read(true).write(true).open(&path).unwrap();
+    let mut t = rustix::termios::tcgetattr(&slave).unwrap();
+    t.make_raw();
+    rustix::termios::tcsetattr(&slave, rustix::termios::OptionalActions::Now, &t).unwrap();
+    std::mem::forget(slave);
+    let master = std::fs::File::from(master);
+    let tcp = std::net::TcpStream::connect(vehicle_link.strip_prefix("tcp:").unwrap()).unwrap();
+    let counters: Arc<[AtomicU64; 3]> = Arc::new([AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0)]);
+    const BUFFER: usize = 4096;
+    let pump = |mut from: Box<dyn Read + Send>, mut to: Box<dyn Write + Send>, carried: usize| {
+        let queue = Arc::new(Mutex::new(std::collections::VecDeque::<u8>::new()));
+        let (q, c) = (queue.clone(), counters.clone());
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 1024];
+            while let Ok(n) = from.read(&mut buf) {
+                if n == 0 {
+                    return;
+                }
+                let mut q = q.lock().unwrap();
+                for &b in &buf[..n] {
+                    if q.len() < BUFFER {
+                        q.push_back(b);
+                    } else {
+                        c[2].fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+            }
+        });
+        let c = counters.clone();
+        std::thread::spawn(move || {
+            let start = Instant::now();
+            let mut sent = 0u64;
+            loop {
+                std::thread::sleep(Duration::from_millis(1));
+                let allowed = (start.elapsed().as_secs_f64() * baud as f64 / 10.0) as u64;
+                let mut q = queue.lock().unwrap();
+                if q.is_empty() {
+                    // An idle radio does not bank its time.
+                    sent = allowed;
+                    continue;
+                }
+                let n = (allowed.saturating_sub(sent) as usize).min(q.len());
+                let bytes: Vec<u8> = q.drain(..n).collect();
+                drop(q);
+                if to.write_all(&bytes).is_err() {
+                    return;
+                }
+                sent += n as u64;
+                c[carried].fetch_add(n as u64, Ordering::Relaxed);
+            }
+        });
+    };
+    pump(Box::new(master.try_clone().unwrap()), Box::new(tcp.try_clone().unwrap()), 0);
+    pump(Box::new(tcp), Box::new(master), 1);
+    (path, counters)
+}
+
+#[test]
+fn the_compact_mode_flies_over_a_57600_baud_radio_on_a_pseudo_terminal() {
+    use std::sync::atomic::Ordering;
+    let _serial = one_at_a_time();
+    let dir = std::env::temp_dir().join(format!("station-57600-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let (mut vehicle, ports) = start_vehicle(
+        &dir.join("vehicle"),
+        &["--no-plots", "--duration", "40", "--seed", "2", "--connect-timeout", "30"],
+    );
+    let (tty, radio) = paced_radio(&ports["link"], 57_600);
+    let mut station = Killed(
+        Command::new(env!("CARGO_BIN_EXE_sim-host"))
+            .args(["station", "--link", &format!("serial:{tty}:57600"), "--compact"])
+            .args(["--forward", &ports["forward"], "--down", &ports["down"]])
+            .args(["--script", "hover", "--duration", "40"])
+            .arg("--out")
+            .arg(dir.join("station"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("starting the station"),
+    );
+    let st = wait(&mut station, Duration::from_secs(60), "the station");
+    let vs = wait(&mut vehicle, Duration::from_secs(30), "the virtual vehicle");
+    assert!(st.success() && vs.success(), "station {st}, vehicle {vs}");
+    let v = read_json(&dir.join("vehicle").join("summary.json"));
+    let s = read_json(&dir.join("station").join("station.json"));
+    let (up, down, dropped) = (
+        radio[0].load(Ordering::Relaxed),
+        radio[1].load(Ordering::Relaxed),
+        radio[2].load(Ordering::Relaxed),
+    );
+    let secs = s["seconds"].as_f64().unwrap();
+    eprintln!(
+        "57600 baud: {:.0} B/s up, {:.0} B/s down, {dropped} dropped; {}",
+        up as f64 / secs,
+        down as f64 / secs,
+        v["rms_error_m"]
+    );
+    assert_eq!(v["landed"], true, "{v}");
+    assert_eq!(s["ended"], "the vehicle landed and disarmed");
+    assert_eq!(s["compact_announced"], true, "{s}");
+    // The radio carried everything: nothing dropped, and with the 2x margin (2880 B/s each way).
+    assert_eq!(dropped, 0);
+    assert!(up as f64 / secs <= 2880.0 && down as f64 / secs <= 2880.0, "{up} up, {down} down in {secs} s");
+    let acc = &v["estimator"]["accepted"];
+    assert!(acc["vision_fixes"].as_u64().unwrap() > 50 && acc["flow"].as_u64().unwrap() > 50, "{acc}");
+    assert_eq!(s["link_decoder"]["bad_crc"], 0);
+    std::fs::remove_dir_all(&dir).ok();
+}

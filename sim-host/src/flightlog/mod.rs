@@ -32,8 +32,9 @@ use std::path::{Path, PathBuf};
 pub const LOG_MAGIC: &[u8; 6] = b"WLQLOG";
 /// Version of the log layout (header and record kinds).
 pub const LOG_FORMAT_VERSION: u16 = 6;
-/// The record schema of format 5, whose records are those of format 6 without [`LogRecord::Station`] (same
-/// variant indices and fields): such logs are read as they are.
+/// The record schema of format 5, whose records are those of format 6 without [`LogRecord::Station`] and
+/// without the parameter id `downlink.telemetry_every_steps` (same variant indices and fields otherwise):
+/// such logs are read as they are.
 pub const SCHEMA_HASH_FORMAT_5: &str = "af873cc779970bb0";
 /// The longest record frame a reader accepts (a raw 4K RGB frame fits): longer ones are damage.
 pub const MAX_LOG_FRAME: usize = 64 << 20;

@@ -2,7 +2,7 @@
 //! every number of the scenario against its declaration (the error names the field and states the range), and
 //! the command-line options that override a scenario value (`render --blur`, `--noise`, `--light-gain`,
 //! `--exposure-time`, `fly --duration`) go through the same validation, so one quantity has one limit.
-//! The flight code's parameters (`[vehicle]`, `[gains]`, `[estimator]`, `[trajectory]`, `[failsafe]`) are
+//! The flight code's parameters (`[vehicle]`, `[gains]`, `[estimator]`, `[trajectory]`, `[failsafe]`, `[downlink]`) are
 //! declared in control-core (`control_core::declare`, docs/parameters.md); these are the simulator's own.
 //! `sim-host params` prints both tables.
 //!
@@ -266,7 +266,7 @@ mod tests {
     }
 
     /// Sections that hold the flight code's parameters, declared in control-core.
-    const FLIGHT_SECTIONS: &[&str] = &["vehicle", "gains", "estimator", "trajectory", "failsafe"];
+    const FLIGHT_SECTIONS: &[&str] = &["vehicle", "gains", "estimator", "trajectory", "failsafe", "downlink"];
 
     /// A numeric leaf of the scenario's TOML: its path (keys and indices) and its declared name.
     struct Leaf {

@@ -3,7 +3,8 @@
 //! Unknown fields are rejected and every value is checked when the file loads; errors name the field.
 use anyhow::{Context, Result, bail};
 use control_core::params::{
-    ControlGains, EstimatorParams, FailsafeParams, FlightParams, TrajectoryParams, VehicleParams,
+    ControlGains, DownlinkParams, EstimatorParams, FailsafeParams, FlightParams, TrajectoryParams,
+    VehicleParams,
 };
 use flight_core::flow::FlowConfig;
 use flight_core::{FlightConfig, VisionConfig};
@@ -446,6 +447,9 @@ pub struct Scenario {
     /// Failsafes.
     #[serde(default)]
     pub failsafe: FailsafeParams,
+    /// What the vehicle sends down the radio.
+    #[serde(default)]
+    pub downlink: DownlinkParams,
     /// Operator script and run limits.
     #[serde(default)]
     pub mission: MissionConfig,
@@ -507,6 +511,7 @@ impl Scenario {
             estimator: self.estimator,
             trajectory: self.trajectory,
             failsafe: self.failsafe,
+            downlink: self.downlink,
             home_m: self.model.start_position_m.map(|v| v as f32),
         }
     }
