@@ -139,3 +139,54 @@ fn a_buffer_of_another_size_than_the_calibration_is_refused_with_both_sizes() {
     assert_eq!(f.channels, 1);
     assert!(f.data.iter().all(|&v| v.abs_diff(90) <= 1), "{:?}", &f.data[..8]);
 }
+
+#[test]
+fn the_station_measures_a_streamed_frame_exactly_as_the_simulator_measures_it() {
+    // The SIL's ground station measures the rendered frame in memory; the station gets it through the frame
+    // stream (a raw or a PNG part, both lossless) and measures it with `station::measure_forward`: the same
+    // measurement, byte for byte, frame after frame.
+    use ground_station::stream::{Frame, PartEncoding, StreamReader, StreamWriter};
+    let scenario = Scenario::paper();
+    let renderer = ForwardRenderer::new(&scenario).unwrap();
+    let mount = scenario.forward_camera_mount();
+    let camera = scenario.forward_camera_model();
+    for encoding in [PartEncoding::Raw, PartEncoding::Png] {
+        let (mut sil, mut station) = (GroundVision::new(&scenario), GroundVision::new(&scenario));
+        let mut images = Vec::new();
+        let mut stream = Vec::new();
+        {
+            let mut w = StreamWriter::start(&mut stream, encoding).unwrap();
+            for k in 0..12u64 {
+                let s = k as f32 / 11.0;
+                let att = Attitude::new(deg(2.0 * s), deg(-3.0 + 4.0 * s), deg(6.0 * s - 3.0));
+                let r_wc = att.world_from_body().mul_mat(&mount.body_from_camera);
+                let mut settings = renderer.default_settings();
+                settings.seed = k;
+                let img = renderer.render(&r_wc, Vec3::new(0.2 + 2.0 * s, 1.3, 0.8), &settings);
+                let f = Frame {
+                    seq: Some(k),
+                    timestamp_us: Some(1_000 * k),
+                    width: img.width,
+                    height: img.height,
+                    channels: 3,
+                    data: img.data.clone(),
+                };
+                w.write(&f).unwrap();
+                images.push(img);
+            }
+        }
+        let mut reader = StreamReader::start(&stream[..]).unwrap();
+        for (k, img) in images.iter().enumerate() {
+            let f = reader.next_frame().unwrap().unwrap();
+            let streamed = sim_host::station::forward_image(f, &camera).unwrap();
+            let m = sim_host::station::measure_forward(&mut station, &streamed, 7, k as u32);
+            let want = sil.detect(img).ok();
+            assert_eq!(
+                postcard::to_allocvec(&m.observation).unwrap(),
+                postcard::to_allocvec(&want).unwrap(),
+                "{encoding:?} frame {k}"
+            );
+            assert!(want.is_some(), "frame {k} has the line");
+        }
+    }
+}
