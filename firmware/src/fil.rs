@@ -46,9 +46,15 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
                 stats.record_step(cost);
                 stats.mode = out.control.status.mode;
                 let every = out.telemetry_every;
-                downlinks.after_step(&out.control, out.param_reply, out.time_sync, s.time_us, cost, every, |m| {
-                    link::send(board, &FcToFil::Link(m))
-                });
+                downlinks.after_step(
+                    &out.control,
+                    out.param_reply,
+                    out.time_sync,
+                    s.time_us,
+                    cost,
+                    every,
+                    |m| link::send(board, &FcToFil::Link(m)),
+                );
                 link::send(
                     board,
                     &FcToFil::Step {
