@@ -64,32 +64,20 @@ fn start_vehicle(out: &Path, args: &[&str]) -> (Killed, std::collections::HashMa
     (vehicle, ports)
 }
 
-fn read_json(p: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
-        .unwrap()
-}
-
-#[test]
-fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
-    let _serial = one_at_a_time();
-    let dir = std::env::temp_dir().join(format!("station-e2e-{}", std::process::id()));
-    std::fs::remove_dir_all(&dir).ok();
-    let exe = env!("CARGO_BIN_EXE_sim-host");
-    let (mut vehicle, ports) = start_vehicle(
-        &dir.join("vehicle"),
-        &["--no-plots", "--duration", "40", "--seed", "2", "--connect-timeout", "30"],
-    );
+/// Runs the station (the hover script, `extra` options) on the radio `link` and the vehicle's camera
+/// `ports` into `dir/station`, waits for both to end successfully, and returns the vehicle's summary.json
+/// and the station's station.json.
+fn fly_hover(
+    mut vehicle: Killed,
+    ports: &std::collections::HashMap<String, String>,
+    link: &str,
+    extra: &[&str],
+    dir: &Path,
+) -> (Value, Value) {
     let mut station = Killed(
-        Command::new(exe)
-            .args([
-                "station",
-                "--link",
-                &ports["link"],
-                "--forward",
-                &ports["forward"],
-                "--down",
-                &ports["down"],
-            ])
+        Command::new(env!("CARGO_BIN_EXE_sim-host"))
+            .args(["station", "--link", link, "--forward", &ports["forward"], "--down", &ports["down"]])
+            .args(extra)
             .args(["--script", "hover", "--duration", "40"])
             .arg("--out")
             .arg(dir.join("station"))
@@ -101,9 +89,27 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
     let st = wait(&mut station, Duration::from_secs(60), "the station");
     let vs = wait(&mut vehicle, Duration::from_secs(30), "the virtual vehicle");
     assert!(st.success() && vs.success(), "station {st}, vehicle {vs}");
+    (
+        read_json(&dir.join("vehicle").join("summary.json")),
+        read_json(&dir.join("station").join("station.json")),
+    )
+}
 
-    let v = read_json(&dir.join("vehicle").join("summary.json"));
-    let s = read_json(&dir.join("station").join("station.json"));
+fn read_json(p: &Path) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
+        .unwrap()
+}
+
+#[test]
+fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
+    let _serial = one_at_a_time();
+    let dir = std::env::temp_dir().join(format!("station-e2e-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let (vehicle, ports) = start_vehicle(
+        &dir.join("vehicle"),
+        &["--no-plots", "--duration", "40", "--seed", "2", "--connect-timeout", "30"],
+    );
+    let (v, s) = fly_hover(vehicle, &ports, &ports["link"], &[], &dir);
     eprintln!("vehicle: {}\nstation: {}", v["virtual_vehicle"], s);
     // The vehicle flew the mission the station commanded and ended on the floor, disarmed.
     assert_eq!(v["landed"], true, "{v}");
@@ -461,28 +467,12 @@ fn the_compact_mode_flies_over_a_57600_baud_radio_on_a_pseudo_terminal() {
     let _serial = one_at_a_time();
     let dir = std::env::temp_dir().join(format!("station-57600-{}", std::process::id()));
     std::fs::remove_dir_all(&dir).ok();
-    let (mut vehicle, ports) = start_vehicle(
+    let (vehicle, ports) = start_vehicle(
         &dir.join("vehicle"),
         &["--no-plots", "--duration", "40", "--seed", "2", "--connect-timeout", "30"],
     );
     let (tty, radio) = paced_radio(&ports["link"], 57_600);
-    let mut station = Killed(
-        Command::new(env!("CARGO_BIN_EXE_sim-host"))
-            .args(["station", "--link", &format!("serial:{tty}:57600"), "--compact"])
-            .args(["--forward", &ports["forward"], "--down", &ports["down"]])
-            .args(["--script", "hover", "--duration", "40"])
-            .arg("--out")
-            .arg(dir.join("station"))
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("starting the station"),
-    );
-    let st = wait(&mut station, Duration::from_secs(60), "the station");
-    let vs = wait(&mut vehicle, Duration::from_secs(30), "the virtual vehicle");
-    assert!(st.success() && vs.success(), "station {st}, vehicle {vs}");
-    let v = read_json(&dir.join("vehicle").join("summary.json"));
-    let s = read_json(&dir.join("station").join("station.json"));
+    let (v, s) = fly_hover(vehicle, &ports, &format!("serial:{tty}:57600"), &["--compact"], &dir);
     let (up, down, dropped) = (
         radio[0].load(Ordering::Relaxed),
         radio[1].load(Ordering::Relaxed),
