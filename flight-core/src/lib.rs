@@ -373,57 +373,61 @@ impl FlightStack {
             self.gyro.push(s, bias);
         }
         for msg in inp.uplink {
+            // The measurements, packed or not (protocol::packed): one path each.
+            if let Some(m) = msg.vision() {
+                self.counters.frames += 1;
+                let repeated = m.observation.is_some() && m.observation == self.last_observation;
+                self.last_observation = m.observation;
+                if repeated {
+                    self.count(&FrameOutcome::Frozen);
+                    frame = Some(FrameOutcome::Frozen);
+                    continue;
+                }
+                match self.job(&m) {
+                    Some(job) => {
+                        if self.jobs.is_full() {
+                            self.jobs.pop_front();
+                            self.counters.dropped += 1;
+                        }
+                        // Cannot fail: a place was made above.
+                        let _ = self.jobs.push_back(job);
+                    }
+                    None => {
+                        let outcome = if m.observation.is_none() {
+                            FrameOutcome::NoTarget
+                        } else {
+                            FrameOutcome::NoAttitude
+                        };
+                        self.count(&outcome);
+                        frame = Some(outcome);
+                    }
+                }
+                continue;
+            }
+            if let Some(m) = msg.flow() {
+                let c = &mut self.flow_counters;
+                c.pairs += 1;
+                let outcome = flow::flow_velocity(&m, &self.flow_cfg, &self.gyro, self.control.estimator());
+                match outcome {
+                    FlowOutcome::NoFlow(_) => c.no_flow += 1,
+                    FlowOutcome::LowQuality => c.low_quality += 1,
+                    FlowOutcome::Unusable | FlowOutcome::NoGyro => c.unusable += 1,
+                    FlowOutcome::Velocity { velocity, .. } => {
+                        c.velocities += 1;
+                        flow = Some(velocity);
+                    }
+                }
+                flow_outcome = Some(outcome);
+                continue;
+            }
             match msg {
                 Uplink::Command(c) => command = Some(*c),
                 Uplink::Heartbeat => {}
                 Uplink::ParamSet { id, value } => param_reply = Some(self.control.set_param(*id, *value)),
                 Uplink::ParamGet(id) => param_reply = Some(self.control.get_param(*id)),
                 Uplink::TimeSync { station_time_us } => time_sync = Some(*station_time_us),
-                Uplink::Vision(m) => {
-                    self.counters.frames += 1;
-                    let repeated = m.observation.is_some() && m.observation == self.last_observation;
-                    self.last_observation = m.observation;
-                    if repeated {
-                        self.count(&FrameOutcome::Frozen);
-                        frame = Some(FrameOutcome::Frozen);
-                        continue;
-                    }
-                    match self.job(m) {
-                        Some(job) => {
-                            if self.jobs.is_full() {
-                                self.jobs.pop_front();
-                                self.counters.dropped += 1;
-                            }
-                            // Cannot fail: a place was made above.
-                            let _ = self.jobs.push_back(job);
-                        }
-                        None => {
-                            let outcome = if m.observation.is_none() {
-                                FrameOutcome::NoTarget
-                            } else {
-                                FrameOutcome::NoAttitude
-                            };
-                            self.count(&outcome);
-                            frame = Some(outcome);
-                        }
-                    }
-                }
-                Uplink::Flow(m) => {
-                    let c = &mut self.flow_counters;
-                    c.pairs += 1;
-                    let outcome =
-                        flow::flow_velocity(m, &self.flow_cfg, &self.gyro, self.control.estimator());
-                    match outcome {
-                        FlowOutcome::NoFlow(_) => c.no_flow += 1,
-                        FlowOutcome::LowQuality => c.low_quality += 1,
-                        FlowOutcome::Unusable | FlowOutcome::NoGyro => c.unusable += 1,
-                        FlowOutcome::Velocity { velocity, .. } => {
-                            c.velocities += 1;
-                            flow = Some(velocity);
-                        }
-                    }
-                    flow_outcome = Some(outcome);
-                }
+                // Handled above.
+                Uplink::Vision(_) | Uplink::PackedVision(_) | Uplink::Flow(_) | Uplink::PackedFlow(_) => {}
             }
         }
         let control = self.control.step(&ControlInputs {
@@ -533,7 +537,7 @@ mod tests {
         let mut telemetry_steps = std::vec::Vec::new();
         for k in 1..=200u32 {
             schedule.after_step(&out.control, None, None, t, 0, out.telemetry_every, |d| {
-                if matches!(d, protocol::Downlink::Telemetry(_)) {
+                if matches!(d, protocol::Downlink::PackedTelemetry(_)) {
                     telemetry_steps.push(k)
                 }
             });

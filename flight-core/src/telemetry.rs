@@ -3,7 +3,7 @@
 //! and by the simulator when it writes a flight log, so that a log holds the very `Downlink` records the
 //! vehicle would have sent.
 use control_core::{CommandResult, ControlOutputs, ParamReply};
-use protocol::{Downlink, Telemetry};
+use protocol::{Downlink, PackedTelemetry, Telemetry};
 
 /// The default telemetry period in control steps (25 Hz at the 500 Hz control rate): the parameter
 /// `downlink.telemetry_every_steps`, which a ground station on a slow radio raises.
@@ -26,7 +26,7 @@ impl DownlinkSchedule {
     /// to this step's parameter request, the answer to its clock-synchronisation request (`time_sync`, the
     /// station time to echo with `time_us`), and every `telemetry_every`th step (the step output's
     /// `telemetry_every`, [`TELEMETRY_EVERY`] by default) telemetry with the step's measured cost
-    /// (`step_cost`, 0 when not measured).
+    /// (`step_cost`, 0 when not measured), packed ([`protocol::packed`]).
     #[allow(clippy::too_many_arguments)]
     pub fn after_step(
         &mut self,
@@ -53,7 +53,7 @@ impl DownlinkSchedule {
             send(Downlink::TimeSync { station_time_us, vehicle_time_us: time_us });
         }
         if self.steps.is_multiple_of(telemetry_every.max(1)) {
-            send(Downlink::Telemetry(Telemetry {
+            send(Downlink::PackedTelemetry(PackedTelemetry::pack(&Telemetry {
                 time_us,
                 mode: st.mode,
                 failsafe: st.failsafe,
@@ -62,7 +62,7 @@ impl DownlinkSchedule {
                 motors_rad_s: control.motors_rad_s,
                 fix_age_s: st.fix_age_s,
                 step_cost,
-            }));
+            })));
         }
     }
 

@@ -14,6 +14,9 @@
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
 pub mod frame;
+pub mod packed;
+
+pub use packed::{PackedFlow, PackedTelemetry, PackedVision};
 
 use control_core::estimator::StateEstimate;
 use control_core::laws::Setpoint;
@@ -77,6 +80,30 @@ pub enum Uplink {
         /// The station's clock at sending (us).
         station_time_us: u64,
     },
+    /// A forward-camera frame's measurement in fewer bytes ([`packed`]): what the station sends.
+    PackedVision(PackedVision),
+    /// A downward-camera frame pair's optical flow in fewer bytes ([`packed`]): what the station sends.
+    PackedFlow(PackedFlow),
+}
+
+impl Uplink {
+    /// The line measurement this message carries, packed or not, as the vehicle uses it.
+    pub fn vision(&self) -> Option<VisionMeasurement> {
+        match self {
+            Uplink::Vision(m) => Some(*m),
+            Uplink::PackedVision(p) => Some(p.unpack()),
+            _ => None,
+        }
+    }
+
+    /// The flow measurement this message carries, packed or not, as the vehicle uses it.
+    pub fn flow(&self) -> Option<FlowMeasurement> {
+        match self {
+            Uplink::Flow(m) => Some(*m),
+            Uplink::PackedFlow(p) => Some(p.unpack()),
+            _ => None,
+        }
+    }
 }
 
 /// Vehicle to ground station: what the flight code is doing.
@@ -121,4 +148,17 @@ pub enum Downlink {
         /// The vehicle's clock at the step that read the request (us).
         vehicle_time_us: u64,
     },
+    /// Periodic telemetry in fewer bytes ([`packed`]): what the vehicle sends.
+    PackedTelemetry(PackedTelemetry),
+}
+
+impl Downlink {
+    /// The telemetry this message carries, packed or not.
+    pub fn telemetry(&self) -> Option<Telemetry> {
+        match self {
+            Downlink::Telemetry(t) => Some(*t),
+            Downlink::PackedTelemetry(p) => Some(p.unpack()),
+            _ => None,
+        }
+    }
 }

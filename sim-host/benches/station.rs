@@ -69,7 +69,11 @@ fn main() {
             let img = forward_image(f, &camera).expect("image");
             let m = measure_forward(&mut vision, &img, seq as u64 * 33_333, seq);
             measured += m.observation.is_some() as usize;
-            let bytes = protocol::frame::encode(&protocol::Uplink::Vision(m), &mut out).expect("frame");
+            let bytes = protocol::frame::encode(
+                &protocol::Uplink::PackedVision(protocol::PackedVision::pack(&m)),
+                &mut out,
+            )
+            .expect("frame");
             radio.extend_from_slice(bytes);
             let t2 = Instant::now();
             total.push((t2 - t0).as_secs_f64() * 1e3);

@@ -9,7 +9,6 @@
 use crate::flightlog::{CameraFrame, CameraId, FrameEncoding, LogHeader, LogItem, LogRecord, StationEvent};
 use anyhow::{Context, Result};
 use geometry::frames::Attitude;
-use protocol::{Downlink, Uplink};
 use serde_json::{Map, Value, json};
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -137,17 +136,18 @@ fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
             }
         }
         LogRecord::Link(m) => {
-            let (topic, schema, value) = match m {
-                Uplink::Vision(x) => ("/link/vision", "wlq.VisionMeasurement", v(x)),
-                Uplink::Flow(x) => ("/link/flow", "wlq.FlowMeasurement", v(x)),
-                other => ("/link/other", "wlq.Uplink", v(other)),
+            // Packed measurements as the vehicle unpacked them (protocol::packed).
+            let (topic, schema, value) = match (m.vision(), m.flow()) {
+                (Some(x), _) => ("/link/vision", "wlq.VisionMeasurement", v(&x)),
+                (_, Some(x)) => ("/link/flow", "wlq.FlowMeasurement", v(&x)),
+                _ => ("/link/other", "wlq.Uplink", v(m)),
             };
             out.push(Msg { topic, schema, time_us: step_us, value: with_time(step_us, value) });
         }
         LogRecord::Downlink(d) => {
-            let (topic, schema, time_us, value) = match d {
-                Downlink::Telemetry(t) => ("/downlink/telemetry", "wlq.Telemetry", t.time_us, v(t)),
-                other => ("/downlink/other", "wlq.Downlink", step_us, v(other)),
+            let (topic, schema, time_us, value) = match d.telemetry() {
+                Some(t) => ("/downlink/telemetry", "wlq.Telemetry", t.time_us, v(&t)),
+                None => ("/downlink/other", "wlq.Downlink", step_us, v(d)),
             };
             out.push(Msg { topic, schema, time_us, value: with_time(time_us, value) });
         }
@@ -201,14 +201,14 @@ fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
         LogRecord::Station(e) => {
             let time_us = e.station_time_us();
             let (topic, schema, value) = match e {
-                StationEvent::Sent { message, .. } => match message {
-                    Uplink::Vision(x) => ("/station/uplink/vision", "wlq.VisionMeasurement", v(x)),
-                    Uplink::Flow(x) => ("/station/uplink/flow", "wlq.FlowMeasurement", v(x)),
-                    other => ("/station/uplink/other", "wlq.Uplink", v(other)),
+                StationEvent::Sent { message, .. } => match (message.vision(), message.flow()) {
+                    (Some(x), _) => ("/station/uplink/vision", "wlq.VisionMeasurement", v(&x)),
+                    (_, Some(x)) => ("/station/uplink/flow", "wlq.FlowMeasurement", v(&x)),
+                    _ => ("/station/uplink/other", "wlq.Uplink", v(message)),
                 },
-                StationEvent::Received { message, .. } => match message {
-                    Downlink::Telemetry(t) => ("/station/downlink/telemetry", "wlq.Telemetry", v(t)),
-                    other => ("/station/downlink/other", "wlq.Downlink", v(other)),
+                StationEvent::Received { message, .. } => match message.telemetry() {
+                    Some(t) => ("/station/downlink/telemetry", "wlq.Telemetry", v(&t)),
+                    None => ("/station/downlink/other", "wlq.Downlink", v(message)),
                 },
                 StationEvent::Clock { vehicle_time_us, bound_us, .. } => (
                     "/station/clock",

@@ -20,7 +20,7 @@ use control_core::ParamOutcome;
 use control_core::params::ParamId;
 use flight_core::telemetry::DownlinkSchedule;
 use flight_core::{FlightStack, StepInput, StepReport};
-use protocol::{Downlink, Uplink};
+use protocol::{Downlink, FlowMeasurement, PackedFlow, PackedVision, Uplink, VisionMeasurement};
 use serde::Serialize;
 use serde_json::Value;
 use std::collections::{HashMap, VecDeque};
@@ -316,8 +316,10 @@ pub fn replay_stream(
                     continue;
                 };
                 // The step cost is the flight computer's measurement, not an output of the code.
-                if let (Downlink::Telemetry(l), Downlink::Telemetry(r)) = (&logged, &mut replayed) {
-                    r.step_cost = l.step_cost;
+                match (&logged, &mut replayed) {
+                    (Downlink::Telemetry(l), Downlink::Telemetry(r)) => r.step_cost = l.step_cost,
+                    (Downlink::PackedTelemetry(l), Downlink::PackedTelemetry(r)) => r.step_cost = l.step_cost,
+                    _ => {}
                 }
                 if postcard::to_allocvec(&logged)? != postcard::to_allocvec(&replayed)? {
                     s.downlinks_differing += 1;
@@ -396,6 +398,57 @@ fn recompute(fv: &mut FrameVision, m: Uplink, index: usize, offset: usize, s: &m
                 Uplink::Vision(v)
             }
             None => {
+                s.measurements_without_frame += 1;
+                m
+            }
+        },
+        // The station's packed forms: the recomputed measurement packed as the station packs it, compared
+        // packed.
+        Uplink::PackedVision(p) => match fv.vision.remove(&p.frame_seq) {
+            Some(obs) => {
+                s.measurements_compared += 1;
+                let again = PackedVision::pack(&VisionMeasurement { observation: obs, ..p.unpack() });
+                if postcard::to_allocvec(&again).ok() != postcard::to_allocvec(&p).ok() {
+                    s.measurements_differing += 1;
+                    let t = p.capture_time_us;
+                    note(
+                        &mut s.first,
+                        index,
+                        offset,
+                        "vision",
+                        t,
+                        "observation",
+                        &p.observation,
+                        &again.observation,
+                    );
+                }
+                Uplink::PackedVision(again)
+            }
+            None => {
+                s.measurements_without_frame += 1;
+                m
+            }
+        },
+        Uplink::PackedFlow(p) => match fv.flow_results.remove(&p.frame_seq) {
+            Some(Some(result)) => {
+                s.measurements_compared += 1;
+                let again = PackedFlow::pack(&FlowMeasurement { result, ..p.unpack() });
+                if postcard::to_allocvec(&again).ok() != postcard::to_allocvec(&p).ok() {
+                    s.measurements_differing += 1;
+                    note(
+                        &mut s.first,
+                        index,
+                        offset,
+                        "flow",
+                        p.t_next_us,
+                        "result",
+                        &p.result,
+                        &again.result,
+                    );
+                }
+                Uplink::PackedFlow(again)
+            }
+            Some(None) | None => {
                 s.measurements_without_frame += 1;
                 m
             }

@@ -26,7 +26,7 @@ use flight_core::flow::FlowOutcome;
 use flight_core::{FlightConfig, FlightStack, StepInput, StepReport};
 use geometry::frames::Attitude;
 use geometry::{Mat3, Vec3};
-use protocol::{FlowMeasurement, Uplink, VisionMeasurement};
+use protocol::{FlowMeasurement, PackedFlow, PackedVision, Uplink, VisionMeasurement};
 use std::collections::VecDeque;
 use vision_core::observation::project_observation;
 use vision_core::observation::within_detector_limits;
@@ -694,7 +694,7 @@ impl Sil {
         let msg =
             VisionMeasurement { capture_time_us: self.t_us, frame_seq: self.frame_index as u32, observation };
         if self.ports.is_none() && self.fault_active(|k| matches!(k, FaultKind::VisionDropout)).is_none() {
-            self.send(deliver, Uplink::Vision(msg));
+            self.send(deliver, Uplink::PackedVision(PackedVision::pack(&msg)));
         }
         self.frame_index += 1;
         self.stats.frames += 1;
@@ -788,7 +788,7 @@ impl Sil {
             };
             let deliver = self.t_us + (cfg.latency_s * 1e6).round() as u64;
             if self.fault_active(|k| matches!(k, FaultKind::FlowDropout)).is_none() {
-                self.send(deliver, Uplink::Flow(msg));
+                self.send(deliver, Uplink::PackedFlow(PackedFlow::pack(&msg)));
             }
             // The truth over the pair: the mean velocity and the attitude at mid-interval.
             let dts = (self.t_us - t_prev) as f64 * 1e-6;
@@ -842,7 +842,7 @@ impl Sil {
                 break;
             }
             self.downlink_queue.pop_front();
-            if let protocol::Downlink::Telemetry(t) = d {
+            if let Some(t) = d.telemetry() {
                 self.station_telemetry = Some(t);
             }
         }

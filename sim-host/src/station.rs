@@ -24,7 +24,7 @@ use ground_station::operator::{Operator, Script, command_name};
 use ground_station::source::{SourceWant, now_unix_us};
 use ground_station::stream::Frame;
 use ground_station::v4l2::CaptureCounters;
-use protocol::{Downlink, FlowMeasurement, Telemetry, Uplink, VisionMeasurement};
+use protocol::{Downlink, FlowMeasurement, PackedFlow, PackedVision, Telemetry, Uplink, VisionMeasurement};
 use std::io::ErrorKind;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, mpsc};
@@ -389,17 +389,20 @@ fn station_loop(
         // What came down.
         while let Ok((m, at)) = down_rx.try_recv() {
             rec.event(StationEvent::Received { station_time_us: at, message: m })?;
-            match m {
-                Downlink::Telemetry(tm) => {
-                    stats.telemetry += 1;
-                    let mode = format!("{:?}", tm.mode);
-                    if stats.modes.last().is_none_or(|(_, m)| *m != mode) {
-                        stats.modes.push((t, mode));
-                    }
-                    was_airborne |= tm.mode.airborne();
-                    telemetry = Some(tm);
-                    telemetry_at = t;
+            if let Some(tm) = m.telemetry() {
+                stats.telemetry += 1;
+                let mode = format!("{:?}", tm.mode);
+                if stats.modes.last().is_none_or(|(_, m)| *m != mode) {
+                    stats.modes.push((t, mode));
                 }
+                was_airborne |= tm.mode.airborne();
+                telemetry = Some(tm);
+                telemetry_at = t;
+                continue;
+            }
+            match m {
+                // Taken above, packed or not.
+                Downlink::Telemetry(_) | Downlink::PackedTelemetry(_) => {}
                 Downlink::TimeSync { station_time_us, vehicle_time_us } => {
                     stats.time_sync_answers += 1;
                     // A refused exchange is counted by the clock sync itself (reported below).
@@ -492,7 +495,7 @@ fn station_loop(
             }
             let m = measure_forward(&mut vision, &img, vehicle_us, frame_seq);
             stats.forward_measured += m.observation.is_some() as u64;
-            send(&Uplink::Vision(m), &mut writer, rec)?;
+            send(&Uplink::PackedVision(PackedVision::pack(&m)), &mut writer, rec)?;
             stats.uplink_vision += 1;
             latencies_us.push(now_unix_us().saturating_sub(arrived));
         }
@@ -529,7 +532,7 @@ fn station_loop(
                 if let (Some(result), Some((t_prev, _))) = (fl.add(&img, predicted), prev_down) {
                     let m =
                         FlowMeasurement { t_prev_us: t_prev, t_next_us: vehicle_us, frame_seq: seq, result };
-                    send(&Uplink::Flow(m), &mut writer, rec)?;
+                    send(&Uplink::PackedFlow(PackedFlow::pack(&m)), &mut writer, rec)?;
                     stats.uplink_flow += 1;
                     stats.flow_sent += 1;
                 }

@@ -140,6 +140,13 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
     assert!(
         s["command_acks"].as_array().unwrap().iter().any(|a| a.as_str().unwrap().contains("Accepted(Land)"))
     );
+    // The default rates fit a 115200-baud serial line with a 2x margin: 5760 B/s each way (docs/ground-station.md,
+    // "Link budget").
+    let secs = s["seconds"].as_f64().unwrap();
+    let (up, down) =
+        (s["link_bytes"][0].as_f64().unwrap() / secs, s["link_bytes"][1].as_f64().unwrap() / secs);
+    eprintln!("default rates: {up:.0} B/s up, {down:.0} B/s down");
+    assert!(up <= 5760.0 && down <= 5760.0, "{up:.0} B/s up, {down:.0} B/s down");
     // Nothing was refused on either side of the radio.
     assert_eq!(v["virtual_vehicle"]["uplink_refused"], 0);
     assert_eq!(s["link_decoder"]["bad_crc"], 0);

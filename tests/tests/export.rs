@@ -46,10 +46,10 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
                 }
                 add("/flow/outcome", rep.flow.is_some() as u64);
             }
-            LogRecord::Link(protocol::Uplink::Vision(_)) => add("/link/vision", 1),
-            LogRecord::Link(protocol::Uplink::Flow(_)) => add("/link/flow", 1),
+            LogRecord::Link(m) if m.vision().is_some() => add("/link/vision", 1),
+            LogRecord::Link(m) if m.flow().is_some() => add("/link/flow", 1),
             LogRecord::Link(_) => add("/link/other", 1),
-            LogRecord::Downlink(protocol::Downlink::Telemetry(_)) => add("/downlink/telemetry", 1),
+            LogRecord::Downlink(d) if d.telemetry().is_some() => add("/downlink/telemetry", 1),
             LogRecord::Downlink(_) => add("/downlink/other", 1),
             LogRecord::Truth { .. } => {
                 add("/truth/pose", 1);

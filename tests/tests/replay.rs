@@ -37,7 +37,7 @@ fn a_flight_replays_bit_for_bit_and_a_changed_parameter_is_found() {
     let telemetry = log
         .records
         .iter()
-        .filter(|(_, r)| matches!(r, LogRecord::Downlink(protocol::Downlink::Telemetry(_))))
+        .filter(|(_, r)| matches!(r, LogRecord::Downlink(protocol::Downlink::PackedTelemetry(_))))
         .count();
     assert_eq!(telemetry, 300, "12 s at 25 Hz");
     assert!(s.links > 300, "vision, flow, commands and heartbeats were fed: {}", s.links);
@@ -188,7 +188,9 @@ fn replay_from_frames_reruns_the_vision_and_finds_a_changed_frame() {
         .records
         .iter()
         .find_map(|(_, r)| match r {
-            LogRecord::Link(protocol::Uplink::Vision(v)) if v.observation.is_some() && v.frame_seq >= 30 => {
+            LogRecord::Link(protocol::Uplink::PackedVision(v))
+                if v.observation.is_some() && v.frame_seq >= 30 =>
+            {
                 Some(v.frame_seq)
             }
             _ => None,

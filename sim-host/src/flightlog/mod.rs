@@ -31,11 +31,25 @@ use std::path::{Path, PathBuf};
 /// The file's first bytes.
 pub const LOG_MAGIC: &[u8; 6] = b"WLQLOG";
 /// Version of the log layout (header and record kinds).
-pub const LOG_FORMAT_VERSION: u16 = 6;
+pub const LOG_FORMAT_VERSION: u16 = 7;
 /// The record schema of format 5, whose records are those of format 6 without [`LogRecord::Station`] and
 /// without the parameter id `downlink.telemetry_every_steps` (same variant indices and fields otherwise):
 /// such logs are read as they are.
 pub const SCHEMA_HASH_FORMAT_5: &str = "af873cc779970bb0";
+/// The record schema of format 6, whose records are those of format 7 without the packed messages
+/// (`Uplink::PackedVision`, `Uplink::PackedFlow`, `Downlink::PackedTelemetry`, appended variants): such
+/// logs are read as they are.
+pub const SCHEMA_HASH_FORMAT_6: &str = "2ddad16395ce5b28";
+
+/// The record schema a log of format `version` was written in, for the versions this reader reads.
+pub fn schema_hash_of_format(version: u16) -> Option<String> {
+    match version {
+        5 => Some(SCHEMA_HASH_FORMAT_5.to_string()),
+        6 => Some(SCHEMA_HASH_FORMAT_6.to_string()),
+        LOG_FORMAT_VERSION => Some(schema_hash()),
+        _ => None,
+    }
+}
 /// The longest record frame a reader accepts (a raw 4K RGB frame fits): longer ones are damage.
 pub const MAX_LOG_FRAME: usize = 64 << 20;
 /// File name `sim-host fly` writes in its output directory.

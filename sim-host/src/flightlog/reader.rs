@@ -75,11 +75,11 @@ impl<R: BufRead> LogReader<R> {
                  reader reads version {LOG_FORMAT_VERSION} (replay it with the sim-host that wrote it, or fly it again)"
             );
         }
-        if version != LOG_FORMAT_VERSION && version != 5 {
+        let Some(ours) = schema_hash_of_format(version) else {
             bail!(
-                "log format version {version} at byte 6; this reader reads versions 5 and {LOG_FORMAT_VERSION}"
+                "log format version {version} at byte 6; this reader reads versions 5 to {LOG_FORMAT_VERSION}"
             );
-        }
+        };
         let len = u32::from_le_bytes([head[8], head[9], head[10], head[11]]) as usize;
         if len > 16 << 20 {
             bail!("the header length at byte 8 says {len} bytes: not a plausible header (damaged?)");
@@ -106,8 +106,7 @@ impl<R: BufRead> LogReader<R> {
         }
         let header: LogHeader = serde_json::from_slice(&json)
             .map_err(|e| anyhow::anyhow!("the header at byte 12 is not readable: {e}"))?;
-        // Format 5's records are format 6's without the station's: read with the schema they were written in.
-        let ours = if version == 5 { SCHEMA_HASH_FORMAT_5.to_string() } else { schema_hash() };
+        // Older formats' records are a prefix of today's variants: read with the schema they were written in.
         if header.schema_hash != ours {
             bail!(
                 "the log's record schema {} differs from this reader's {ours} (header at byte 12): written by {}",

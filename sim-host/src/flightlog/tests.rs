@@ -197,16 +197,16 @@ fn a_full_disk_keeps_what_was_written() {
 #[test]
 fn golden_bytes_of_the_header_and_the_schema_hash() {
     let b = header_bytes(&sample_header()).unwrap();
-    // "WLQLOG", version 6 (u16 LE), JSON length (u32 LE), the JSON, its CRC-32 (u32 LE).
-    assert_eq!(&b[..8], b"WLQLOG\x06\x00");
+    // "WLQLOG", version 7 (u16 LE), JSON length (u32 LE), the JSON, its CRC-32 (u32 LE).
+    assert_eq!(&b[..8], b"WLQLOG\x07\x00");
     let len = u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize;
     assert_eq!(b.len(), 16 + len);
     let json = &b[12..12 + len];
-    assert!(std::str::from_utf8(json).unwrap().starts_with("{\"format_version\":6,\"schema_hash\":\""));
+    assert!(std::str::from_utf8(json).unwrap().starts_with("{\"format_version\":7,\"schema_hash\":\""));
     assert_eq!(b[12 + len..], crc32fast::hash(json).to_le_bytes());
     assert_eq!(crc32fast::hash(b"123456789"), 0xCBF4_3926, "CRC-32 (IEEE) check value");
     // The schema fingerprint of this version's records: any change to a record's fields changes it.
-    assert_eq!(schema_hash(), "2ddad16395ce5b28");
+    assert_eq!(schema_hash(), "6da2960026f0b4d8");
 }
 
 #[test]
@@ -251,37 +251,39 @@ fn golden_bytes_of_station_records() {
     assert_eq!(&body[1..n - 2], &payload[..]);
 }
 
-#[test]
-fn a_format_5_log_reads_as_it_was_written() {
-    // Format 5 is format 6 without the station's records: its header (version 5, its schema hash) and
-    // records read unchanged.
+/// A log of an older `version` written in its schema `hash`: a header and a heartbeat.
+fn older_log(version: u8, hash: &str) -> Vec<u8> {
     let mut header = sample_header();
-    header.format_version = 5;
-    header.schema_hash = SCHEMA_HASH_FORMAT_5.into();
+    header.format_version = version.into();
+    header.schema_hash = hash.into();
     let json = serde_json::to_vec(&header).unwrap();
-    let mut bytes = b"WLQLOG\x05\x00".to_vec();
+    let mut bytes = vec![b'W', b'L', b'Q', b'L', b'O', b'G', version, 0];
     bytes.extend((json.len() as u32).to_le_bytes());
     bytes.extend(&json);
     bytes.extend(crc32fast::hash(&json).to_le_bytes());
     let hb = record_frame(&LogRecord::Link(Uplink::Heartbeat)).unwrap();
     bytes.extend(&hb);
     bytes.extend(record_frame(&end_record(&hb)).unwrap());
-    let log = parse_log(&bytes).unwrap();
-    assert!(log.damage.is_empty(), "{:?}", log.damage);
-    assert_eq!(log.records.len(), 2);
-    assert_eq!(log.header.format_version, 5);
-    // With another schema hash, or as another version, it is refused naming the byte.
-    let mut bad = bytes.clone();
-    bad[6] = 7;
-    let e = parse_log(&bad).unwrap_err().to_string();
-    assert!(e.contains("version 7 at byte 6"), "{e}");
-    let mut h6 = header.clone();
-    h6.schema_hash = schema_hash();
-    let json6 = serde_json::to_vec(&h6).unwrap();
-    let mut bad = b"WLQLOG\x05\x00".to_vec();
-    bad.extend((json6.len() as u32).to_le_bytes());
-    bad.extend(&json6);
-    bad.extend(crc32fast::hash(&json6).to_le_bytes());
-    let e = parse_log(&bad).unwrap_err().to_string();
-    assert!(e.contains("record schema") && e.contains(SCHEMA_HASH_FORMAT_5), "{e}");
+    bytes
+}
+
+#[test]
+fn format_5_and_6_logs_read_as_they_were_written() {
+    // Format 5 is format 6 without the station's records, format 6 format 7 without the packed messages:
+    // their headers (their version, their schema hash) and records read unchanged.
+    for (version, hash) in [(5u8, SCHEMA_HASH_FORMAT_5), (6, SCHEMA_HASH_FORMAT_6)] {
+        let bytes = older_log(version, hash);
+        let log = parse_log(&bytes).unwrap();
+        assert!(log.damage.is_empty(), "{:?}", log.damage);
+        assert_eq!(log.records.len(), 2);
+        assert_eq!(log.header.format_version, u16::from(version));
+        // As another version it is refused naming the byte.
+        let mut bad = bytes.clone();
+        bad[6] = 8;
+        let e = parse_log(&bad).unwrap_err().to_string();
+        assert!(e.contains("version 8 at byte 6"), "{e}");
+        // With today's schema hash under the old version: refused, naming the schema it should have.
+        let e = parse_log(&older_log(version, &schema_hash())).unwrap_err().to_string();
+        assert!(e.contains("record schema") && e.contains(hash), "{e}");
+    }
 }
