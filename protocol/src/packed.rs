@@ -595,3 +595,52 @@ mod tests {
         assert_eq!(Uplink::Vision(v).flow(), None);
     }
 }
+
+#[cfg(test)]
+mod golden {
+    use super::*;
+    use crate::Uplink;
+    use crate::frame::{MAX_FRAME, WIRE_VERSION, crc16, encode};
+
+    fn frame_of(m: &Uplink) -> std::vec::Vec<u8> {
+        let mut out = [0u8; MAX_FRAME];
+        encode(m, &mut out).unwrap().to_vec()
+    }
+
+    #[test]
+    fn golden_bytes_of_the_packed_messages() {
+        // Pinned: changing these bytes is a wire-format change (docs/log-format.md, "Packed messages").
+        // A flow without a result: Uplink variant 8, t_next 1000 (E8 07), interval 16667 (9B 82 01), frame 3,
+        // Err (1), NoTexture (1).
+        let none = PackedFlow {
+            t_next_us: 1000,
+            interval_us: 16_667,
+            frame_seq: 3,
+            result: Err(NoFlowReason::NoTexture),
+        };
+        let body = [WIRE_VERSION, 8, 0xE8, 0x07, 0x9B, 0x82, 0x01, 0x03, 0x01, 0x01];
+        assert_eq!(crc16(&body), 0xB785);
+        assert_eq!(
+            frame_of(&Uplink::PackedFlow(none)),
+            [0x0D, 0x01, 0x08, 0xE8, 0x07, 0x9B, 0x82, 0x01, 0x03, 0x01, 0x01, 0x85, 0xB7, 0x00]
+        );
+        // An edge: centroid (0.5, -0.25) as two f32, normal angle 0 (f32), 100 points, spread 1.0 and RMS 0.5
+        // as half precision (00 3C, 00 38).
+        let e = PackedEdge::pack(&EdgeStats {
+            centroid: Vec2::new(0.5, -0.25),
+            normal: Vec2::new(1.0, 0.0),
+            count: 100,
+            spread: 1.0,
+            rms: 0.5,
+        });
+        let mut b = [0u8; 32];
+        let got = postcard::to_slice(&e, &mut b).unwrap();
+        assert_eq!(
+            got,
+            [
+                0x00, 0x00, 0x00, 0x3F, 0x00, 0x00, 0x80, 0xBE, 0x00, 0x00, 0x00, 0x00, 0x64, 0x00, 0x3C,
+                0x00, 0x38
+            ]
+        );
+    }
+}
