@@ -247,3 +247,106 @@ pub fn write_png_rgb(path: &Path, img: &RgbImage) -> anyhow::Result<()> {
 pub fn write_png_gray(path: &Path, img: &GrayImage) -> anyhow::Result<()> {
     write(path, img.width, img.height, png::ColorType::Grayscale, &img.data)
 }
+
+/// A logged camera frame's pixels as images: built from an image (raw or PNG) and decoded back, the frame
+/// checking the size it declares (`flightlog::CameraFrame::check_size`).
+pub trait FrameImages: Sized {
+    /// A forward (RGB) frame.
+    fn rgb(seq: u32, capture_time_us: u64, img: &RgbImage, enc: FrameEncoding) -> anyhow::Result<Self>;
+    /// A grey frame of a camera.
+    fn gray(
+        camera: CameraId,
+        seq: u32,
+        capture_time_us: u64,
+        img: &GrayImage,
+        rotation_hint_cam: [f32; 3],
+        enc: FrameEncoding,
+    ) -> anyhow::Result<Self>;
+    /// The pixels as an RGB image (grey frames are expanded).
+    fn to_rgb(&self) -> anyhow::Result<RgbImage>;
+    /// The pixels as a grey image (colour frames are converted with Rec. 601 luma weights).
+    fn to_gray(&self) -> anyhow::Result<GrayImage>;
+}
+
+use crate::flightlog::{CameraFrame, CameraId, FrameEncoding};
+
+impl FrameImages for CameraFrame {
+    fn rgb(seq: u32, capture_time_us: u64, img: &RgbImage, enc: FrameEncoding) -> anyhow::Result<Self> {
+        let data = match enc {
+            FrameEncoding::Raw => img.data.clone(),
+            FrameEncoding::Png => png_of_rgb(img)?,
+        };
+        Ok(Self {
+            camera: CameraId::Forward,
+            seq,
+            capture_time_us,
+            width: img.width as u16,
+            height: img.height as u16,
+            channels: 3,
+            encoding: enc,
+            rotation_hint_cam: [0.0; 3],
+            data,
+        })
+    }
+
+    fn gray(
+        camera: CameraId,
+        seq: u32,
+        capture_time_us: u64,
+        img: &GrayImage,
+        rotation_hint_cam: [f32; 3],
+        enc: FrameEncoding,
+    ) -> anyhow::Result<Self> {
+        let data = match enc {
+            FrameEncoding::Raw => img.data.clone(),
+            FrameEncoding::Png => png_of_gray(img)?,
+        };
+        Ok(Self {
+            camera,
+            seq,
+            capture_time_us,
+            width: img.width as u16,
+            height: img.height as u16,
+            channels: 1,
+            encoding: enc,
+            rotation_hint_cam,
+            data,
+        })
+    }
+
+    fn to_rgb(&self) -> anyhow::Result<RgbImage> {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let img = match (self.encoding, self.channels) {
+            (FrameEncoding::Png, _) => {
+                rgb_from_png(&self.data).or_else(|_| gray_from_png(&self.data).map(|g| gray_to_rgb(&g)))?
+            }
+            (FrameEncoding::Raw, 3) => RgbImage { width: w, height: h, data: self.data.clone() },
+            (FrameEncoding::Raw, 1) => {
+                gray_to_rgb(&GrayImage { width: w, height: h, data: self.data.clone() })
+            }
+            (_, c) => anyhow::bail!("frame {} has {c} channels (1 or 3 expected)", self.seq),
+        };
+        self.check_size(img.width, img.height, img.data.len() / 3)?;
+        Ok(img)
+    }
+
+    fn to_gray(&self) -> anyhow::Result<GrayImage> {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let img = match (self.encoding, self.channels) {
+            (FrameEncoding::Png, _) => gray_from_png(&self.data)?,
+            (FrameEncoding::Raw, 1) => GrayImage { width: w, height: h, data: self.data.clone() },
+            (FrameEncoding::Raw, 3) => GrayImage {
+                width: w,
+                height: h,
+                data: self.data.chunks_exact(3).map(|p| luma(p[0], p[1], p[2])).collect(),
+            },
+            (_, c) => anyhow::bail!("frame {} has {c} channels (1 or 3 expected)", self.seq),
+        };
+        self.check_size(img.width, img.height, img.data.len())?;
+        Ok(img)
+    }
+}
+
+fn gray_to_rgb(g: &GrayImage) -> RgbImage {
+    RgbImage { width: g.width, height: g.height, data: g.data.iter().flat_map(|&v| [v, v, v]).collect() }
+}

@@ -7,8 +7,8 @@
 pub mod downward;
 pub mod export;
 pub mod fil;
-pub mod files;
-pub mod flightlog;
+/// The flight log and atomic file writes live in their own crate, re-exported under their old paths.
+pub use flightlog::{self, files};
 pub mod fly;
 pub mod imageio;
 pub mod import;

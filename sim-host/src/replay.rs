@@ -13,6 +13,7 @@
 //! stack receives, at the logged delivery time.
 use crate::downward::GroundFlow;
 use crate::flightlog::{CameraId, LogDamage, LogHeader, LogItem, LogRecord, LogWriter};
+use crate::imageio::FrameImages;
 use crate::scenario::Scenario;
 use crate::vision::GroundVision;
 use anyhow::{Result, bail};

@@ -12,6 +12,7 @@
 use crate::downward::{CamPose, GroundFlow, analytic_flow};
 use crate::fil::{QemuFc, QemuOptions};
 use crate::flightlog::LogRecord;
+use crate::imageio::FrameImages;
 use crate::model::{ModelParams, Quadrotor, quat_to_mat};
 use crate::render::{DownPose, DownRenderer, ForwardRenderer};
 use crate::rng::{SimRng, splitmix64};

@@ -12,7 +12,7 @@ use crate::downward::GroundFlow;
 use crate::flightlog::{
     CameraFrame, CameraId, FrameEncoding, FramePolicy, LogRecord, LogWriter, StationEvent,
 };
-use crate::imageio::{GrayImage, RgbImage};
+use crate::imageio::{FrameImages, GrayImage, RgbImage};
 use crate::scenario::Scenario;
 use crate::vision::GroundVision;
 use anyhow::{Context, Result, bail};

@@ -3,6 +3,7 @@
 use sim_host::flightlog::{
     CameraId, FrameEncoding, FramePolicy, LOG_FILE, LogReader, LogRecord, parse_log, read_log, record_frame,
 };
+use sim_host::imageio::FrameImages;
 use sim_host::replay::{ReplayOptions, VisionSource, replay};
 use sim_host::rng::SimRng;
 use sim_host::sil::CameraMode;

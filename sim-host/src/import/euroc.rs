@@ -20,6 +20,7 @@
 use super::{ExtraRecords, ImportData, ImportSummary, Window, import_header, write_import};
 use crate::downward::GroundFlow;
 use crate::flightlog::{CameraFrame, CameraId, FrameEncoding, LogRecord, ReferenceState};
+use crate::imageio::FrameImages;
 use crate::scenario::Scenario;
 use crate::vision::GroundVision;
 use anyhow::{Context, Result, bail};

@@ -228,94 +228,8 @@ pub struct CameraFrame {
 }
 
 impl CameraFrame {
-    /// A forward (RGB) frame.
-    pub fn rgb(
-        seq: u32,
-        capture_time_us: u64,
-        img: &crate::imageio::RgbImage,
-        enc: FrameEncoding,
-    ) -> Result<Self> {
-        let data = match enc {
-            FrameEncoding::Raw => img.data.clone(),
-            FrameEncoding::Png => crate::imageio::png_of_rgb(img)?,
-        };
-        Ok(Self {
-            camera: CameraId::Forward,
-            seq,
-            capture_time_us,
-            width: img.width as u16,
-            height: img.height as u16,
-            channels: 3,
-            encoding: enc,
-            rotation_hint_cam: [0.0; 3],
-            data,
-        })
-    }
-
-    /// A grey frame of a camera.
-    pub fn gray(
-        camera: CameraId,
-        seq: u32,
-        capture_time_us: u64,
-        img: &crate::imageio::GrayImage,
-        rotation_hint_cam: [f32; 3],
-        enc: FrameEncoding,
-    ) -> Result<Self> {
-        let data = match enc {
-            FrameEncoding::Raw => img.data.clone(),
-            FrameEncoding::Png => crate::imageio::png_of_gray(img)?,
-        };
-        Ok(Self {
-            camera,
-            seq,
-            capture_time_us,
-            width: img.width as u16,
-            height: img.height as u16,
-            channels: 1,
-            encoding: enc,
-            rotation_hint_cam,
-            data,
-        })
-    }
-
-    /// The pixels as an RGB image (grey frames are expanded).
-    pub fn to_rgb(&self) -> Result<crate::imageio::RgbImage> {
-        let (w, h) = (self.width as usize, self.height as usize);
-        let img = match (self.encoding, self.channels) {
-            (FrameEncoding::Png, _) => crate::imageio::rgb_from_png(&self.data)
-                .or_else(|_| crate::imageio::gray_from_png(&self.data).map(|g| gray_to_rgb(&g)))?,
-            (FrameEncoding::Raw, 3) => {
-                crate::imageio::RgbImage { width: w, height: h, data: self.data.clone() }
-            }
-            (FrameEncoding::Raw, 1) => {
-                gray_to_rgb(&crate::imageio::GrayImage { width: w, height: h, data: self.data.clone() })
-            }
-            (_, c) => bail!("frame {} has {c} channels (1 or 3 expected)", self.seq),
-        };
-        self.check(img.width, img.height, img.data.len() / 3)?;
-        Ok(img)
-    }
-
-    /// The pixels as a grey image (colour frames are converted with Rec. 601 luma weights).
-    pub fn to_gray(&self) -> Result<crate::imageio::GrayImage> {
-        let (w, h) = (self.width as usize, self.height as usize);
-        let img = match (self.encoding, self.channels) {
-            (FrameEncoding::Png, _) => crate::imageio::gray_from_png(&self.data)?,
-            (FrameEncoding::Raw, 1) => {
-                crate::imageio::GrayImage { width: w, height: h, data: self.data.clone() }
-            }
-            (FrameEncoding::Raw, 3) => crate::imageio::GrayImage {
-                width: w,
-                height: h,
-                data: self.data.chunks_exact(3).map(|p| crate::imageio::luma(p[0], p[1], p[2])).collect(),
-            },
-            (_, c) => bail!("frame {} has {c} channels (1 or 3 expected)", self.seq),
-        };
-        self.check(img.width, img.height, img.data.len())?;
-        Ok(img)
-    }
-
-    fn check(&self, w: usize, h: usize, pixels: usize) -> Result<()> {
+    /// Checks that an image decoded from the frame has the declared size: `w` x `h` with `pixels` pixels.
+    pub fn check_size(&self, w: usize, h: usize, pixels: usize) -> Result<()> {
         if w != self.width as usize || h != self.height as usize || pixels != w * h {
             bail!(
                 "frame {} of the {:?} camera: {}x{} declared, {w}x{h} with {pixels} pixels stored",
@@ -326,14 +240,6 @@ impl CameraFrame {
             );
         }
         Ok(())
-    }
-}
-
-fn gray_to_rgb(g: &crate::imageio::GrayImage) -> crate::imageio::RgbImage {
-    crate::imageio::RgbImage {
-        width: g.width,
-        height: g.height,
-        data: g.data.iter().flat_map(|&v| [v, v, v]).collect(),
     }
 }
 
@@ -477,6 +383,7 @@ impl LogWriter {
     }
 }
 
+pub mod files;
 mod reader;
 pub use reader::*;
 
