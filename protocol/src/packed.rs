@@ -66,7 +66,7 @@ fn v3(v: [F16; 3]) -> Vec3 {
     Vec3::new(x, y, z)
 }
 
-/// One edge of the line in 18 bytes (26 unpacked).
+/// One edge of the line in 17-19 bytes (25-27 unpacked; the count is a varint).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PackedEdge {
