@@ -3,16 +3,16 @@
 //! The full messages ([`VisionMeasurement`], [`FlowMeasurement`], [`Telemetry`]) carry every field as an
 //! `f32` and some twice (the estimate's Euler angles beside its quaternion). At 30 line measurements, 60 flow
 //! measurements and 25 telemetry messages a second they took 6.7 kB/s up, more than half of a 115200-baud
-//! line, and 5.6 kB/s down, just under half (docs/ground-station.md, "Link budget"). The packed forms keep at full precision what
-//! the flight code's accuracy depends on and send the rest as IEEE 754 half precision ([`F16`], 11
-//! significant bits, a relative error of at most 2^-11):
+//! line, and 5.6 kB/s down, just under half (docs/ground-station.md, "Link budget"). The packed forms keep
+//! at full precision what the flight code's accuracy depends on and send the rest as IEEE 754 half
+//! precision ([`F16`], 11 significant bits, a relative error of at most 2^-11):
 //!
 //! - a line edge keeps its centroid and its normal's angle as `f32` (the pose is as sensitive to them as to
 //!   the pixels) and sends its spread and RMS residual, which only weight and bound it, as `F16`;
 //! - a flow keeps its interval as a `u32` beside the later capture time, sends its statistics as `F16` (the
-//!   flow's relative error of at most 2^-11 is 0.5 mm/s at 1 m/s), and leaves out what the vehicle can compute
-//!   (the quality, inliers over selected features, computed the same way) or never uses (the raw median in
-//!   pixels, which the station keeps in its own log);
+//!   flow's relative error of at most 2^-11 is 0.5 mm/s at 1 m/s), and leaves out what the vehicle can
+//!   compute (the quality, inliers over selected features, computed the same way) or never uses (the raw
+//!   median in pixels, which the station keeps in its own log);
 //! - telemetry keeps position, velocity, attitude quaternion, rates and the position setpoint as `f32` and
 //!   sends standard deviations, biases, wind, rotor speeds and the setpoint's velocity and acceleration as
 //!   `F16`; the Euler angles are computed again from the quaternion.
