@@ -251,6 +251,36 @@ impl Decoder {
         Some(r)
     }
 
+    /// Feeds one byte of a keyed link. When it completes a frame, returns the frame's body with COBS undone,
+    /// for [`crate::auth::SecureLink::open`] (which counts what it accepts and refuses), or the framing error
+    /// (COBS, oversized), counted here.
+    pub fn push_body(&mut self, byte: u8) -> Option<Result<&[u8], FrameError>> {
+        if byte != 0 {
+            if self.len < self.buf.len() {
+                self.buf[self.len] = byte;
+                self.len += 1;
+            } else {
+                self.overflow = true;
+            }
+            return None;
+        }
+        let len = core::mem::replace(&mut self.len, 0);
+        if core::mem::replace(&mut self.overflow, false) {
+            self.counters.oversized += 1;
+            return Some(Err(FrameError::Oversized));
+        }
+        if len == 0 {
+            return None;
+        }
+        match cobs_decode_in_place(&mut self.buf[..len]) {
+            Some(n) => Some(Ok(&self.buf[..n])),
+            None => {
+                self.counters.cobs += 1;
+                Some(Err(FrameError::Cobs))
+            }
+        }
+    }
+
     fn decode_frame<T: DeserializeOwned>(&mut self, len: usize) -> Result<T, FrameError> {
         let n = cobs_decode_in_place(&mut self.buf[..len]).ok_or(FrameError::Cobs)?;
         decode_raw(&self.buf[..n])
