@@ -12,6 +12,7 @@ pub use flightlog::{self, files};
 pub mod fly;
 pub mod imageio;
 pub mod import;
+pub mod link_key;
 pub use vehicle_model as model;
 pub mod params_doc;
 pub mod plot;

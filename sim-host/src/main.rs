@@ -30,6 +30,13 @@ struct Cli {
     command: Command,
 }
 
+#[derive(clap::Args, Debug)]
+struct KeygenArgs {
+    /// The key file to write (refused if it exists).
+    #[arg(long, value_name = "FILE")]
+    out: std::path::PathBuf,
+}
+
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Render the frame a camera sees from a vehicle pose.
@@ -53,6 +60,9 @@ enum Command {
     /// streams measured, the measurements stamped on the vehicle's clock and sent up the radio with the
     /// operator's commands.
     Station(cli::station::StationArgs),
+    /// Make a new radio key (32 random bytes, mode 0600) for `station --key` and the vehicle
+    /// (docs/security.md); an existing file is never overwritten.
+    Keygen(KeygenArgs),
     /// Print the flight parameters' reference as Markdown (docs/parameters.md): each parameter's dotted name,
     /// type, default, range, unit and description, from their one declaration.
     Params,
@@ -79,6 +89,13 @@ fn main() -> ExitCode {
         Command::Vision(VisionCommand::Flow(a)) => vision_flow(a),
         Command::Fly(a) => fly(a),
         Command::Station(a) => cli::station::station(a),
+        Command::Keygen(a) => sim_host::link_key::keygen(&a.out).map(|()| {
+            eprintln!(
+                "wrote the radio key {} (mode 0600): give it to the station and the vehicle",
+                a.out.display()
+            );
+            ExitCode::SUCCESS
+        }),
         Command::Replay(a) => replay(a),
         Command::Export(a) => run_export(a),
         Command::Import(ImportCommand::Euroc(a)) => import_euroc(a),

@@ -13,6 +13,7 @@ use crate::flightlog::{
     CameraFrame, CameraId, FrameEncoding, FramePolicy, LogRecord, LogWriter, StationEvent,
 };
 use crate::imageio::{FrameImages, GrayImage, RgbImage};
+use crate::link_key::{LinkReceiver, LinkSecurity, Received};
 use crate::scenario::Scenario;
 use crate::vision::GroundVision;
 use anyhow::{Context, Result, bail};
@@ -69,6 +70,8 @@ pub struct StationOptions {
     pub frames: FramePolicy,
     /// The compact mode ([`COMPACT_VISION_EVERY`]).
     pub compact: bool,
+    /// The radio's key, or `None` for an unauthenticated development link.
+    pub key: Option<protocol::auth::Key>,
 }
 
 /// What the station counted.
@@ -116,6 +119,12 @@ pub struct StationStats {
     pub link_bytes: [u64; 2],
     /// The radio's decoder: frames refused by reason.
     pub link_decoder: protocol::frame::DecodeCounters,
+    /// How the radio is secured: `hmac-sha256-64`, or `none (development)`.
+    pub link_security: String,
+    /// The downlink's authentication: sessions, frames accepted and refused by reason (docs/security.md).
+    pub auth: protocol::auth::AuthCounters,
+    /// Hellos sent before the vehicle answered (keyed link).
+    pub hellos_sent: u64,
     /// Median and 95th percentile of the time from a forward frame's arrival to its measurement leaving on
     /// the radio (ms).
     pub frame_to_uplink_ms: [f64; 2],
@@ -304,23 +313,32 @@ fn station_loop(
     let decoder_counts = Arc::new(std::sync::Mutex::new((protocol::frame::DecodeCounters::default(), 0u64)));
     let counts2 = decoder_counts.clone();
     let stop2 = stop.clone();
+    // The link's security, shared by the reader (which opens the downlink and the vehicle's welcome) and the
+    // sender (which seals the uplink).
+    let security =
+        Arc::new(std::sync::Mutex::new(LinkSecurity::new(protocol::auth::Role::Station, opts.key)));
+    let security2 = security.clone();
     let link_reader = std::thread::spawn(move || -> Option<String> {
-        let mut dec = protocol::frame::Decoder::new();
+        let mut rx = LinkReceiver::default();
         let mut buf = [0u8; 4096];
         while !stop2.load(Ordering::Relaxed) {
             match reader.read(&mut buf) {
                 Ok(0) => continue,
                 Ok(n) => {
                     let t = now_unix_us();
+                    let Ok(mut sec) = security2.lock() else { return None };
                     for &b in &buf[..n] {
-                        if let Some(Ok(m)) = dec.push::<Downlink>(b)
+                        // The station never takes a hello: its nonce source is never asked.
+                        if let Some(Received::Message(m)) =
+                            rx.push::<Downlink>(&mut sec, b, t, false, || [0; 16])
                             && down_tx.send((m, t)).is_err()
                         {
                             return None;
                         }
                     }
+                    drop(sec);
                     if let Ok(mut c) = counts2.lock() {
-                        *c = (dec.counters(), c.1 + n as u64);
+                        *c = (rx.framing(), c.1 + n as u64);
                     }
                 }
                 Err(e)
@@ -356,15 +374,36 @@ fn station_loop(
     let mut telemetry: Option<Telemetry> = None;
     let mut was_airborne = false;
     let mut latencies_us: Vec<u64> = Vec::new();
-    let mut out = [0u8; protocol::frame::MAX_FRAME];
     let sent_bytes = std::cell::Cell::new(0u64);
-    let mut send = |m: &Uplink, w: &mut Box<dyn std::io::Write + Send>, rec: &mut Recorder| -> Result<()> {
-        let bytes =
-            protocol::frame::encode(m, &mut out).map_err(|e| anyhow::anyhow!("encoding {m:?}: {e:?}"))?;
-        w.write_all(bytes).context("the radio")?;
+    let security3 = security.clone();
+    let send = |m: &Uplink, w: &mut Box<dyn std::io::Write + Send>, rec: &mut Recorder| -> Result<()> {
+        let bytes = {
+            let mut sec = security3.lock().map_err(|_| anyhow::anyhow!("the radio's reader failed"))?;
+            if !sec.ready() {
+                bail!("{m:?} was to be sent before the link's handshake");
+            }
+            sec.frame(m).with_context(|| format!("framing {m:?}"))?
+        };
+        w.write_all(&bytes).context("the radio")?;
         w.flush().context("the radio")?;
         sent_bytes.set(sent_bytes.get() + bytes.len() as u64);
         rec.event(StationEvent::Sent { station_time_us: now_unix_us(), message: *m })
+    };
+    // A keyed link starts with the handshake: a hello, again each second until the vehicle answers.
+    let mut next_hello = 0.0;
+    let hello = |w: &mut Box<dyn std::io::Write + Send>, stats: &mut StationStats| -> Result<()> {
+        let nonce = crate::link_key::random_nonce()?;
+        let mut buf = [0u8; protocol::frame::MAX_FRAME];
+        let bytes = {
+            let mut sec = security.lock().map_err(|_| anyhow::anyhow!("the radio's reader failed"))?;
+            let LinkSecurity::Keyed(l) = &mut *sec else { return Ok(()) };
+            l.hello(nonce, &mut buf).map_err(|e| anyhow::anyhow!("the hello: {e:?}"))?.to_vec()
+        };
+        w.write_all(&bytes).context("the radio")?;
+        w.flush().context("the radio")?;
+        sent_bytes.set(sent_bytes.get() + bytes.len() as u64);
+        stats.hellos_sent += 1;
+        Ok(())
     };
     let start = Instant::now();
     let mut next_sync = 0.0;
@@ -379,6 +418,19 @@ fn station_loop(
         }
         if t > opts.duration_s {
             break format!("the duration ({} s) ran out", opts.duration_s);
+        }
+        let session = security.lock().map(|sec| sec.ready()).unwrap_or(false);
+        if !session && t >= next_hello {
+            hello(&mut writer, &mut stats)?;
+            next_hello += 1.0;
+        }
+        if !session && t > opts.answer_timeout_s {
+            bail!(
+                "the vehicle did not answer the link's hello within {} s ({} sent): is its key this --key? (a \
+                 vehicle without a key needs --no-key)",
+                opts.answer_timeout_s,
+                stats.hellos_sent
+            );
         }
         if telemetry.is_none() && t > opts.answer_timeout_s {
             bail!(
@@ -427,6 +479,11 @@ fn station_loop(
         }
         if was_airborne && telemetry.is_some_and(|tm| tm.mode == FlightMode::Disarmed) {
             break "the vehicle landed and disarmed".to_string();
+        }
+        // Nothing goes up before the link's handshake (a keyed vehicle would refuse it).
+        if !session {
+            std::thread::sleep(Duration::from_millis(1));
+            continue;
         }
         // Up: time sync, heartbeat, the operator.
         if t >= next_sync {
@@ -584,6 +641,10 @@ fn station_loop(
     if let Ok(c) = decoder_counts.lock() {
         stats.link_decoder = c.0;
         stats.link_bytes = [sent_bytes.get(), c.1];
+    }
+    if let Ok(sec) = security.lock() {
+        stats.link_security = sec.describe().to_string();
+        stats.auth = sec.counters();
     }
     latencies_us.sort_unstable();
     let q = |p: f64| {

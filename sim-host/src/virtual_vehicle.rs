@@ -5,6 +5,7 @@
 //! The cameras stamp each frame with the machine's clock at its capture (`X-Timestamp-Us`, us since the Unix
 //! epoch), as a webcam's driver stamps its buffers with the station's clock; the station maps those times to
 //! the vehicle's clock with its clock sync, as it must with a real vehicle.
+use crate::link_key::{LinkReceiver, LinkSecurity, Received, random_nonce};
 use crate::sil::{RunStats, Sil};
 use anyhow::{Context, Result, bail};
 use ground_station::source::now_unix_us;
@@ -29,6 +30,8 @@ pub struct ServeOptions {
     pub connect_timeout_s: f64,
     /// Set to end the flight now (Ctrl-C): the summary and the log are written with what was flown.
     pub stop: Arc<AtomicBool>,
+    /// The radio's key (`--key`), or `None` for an unauthenticated development link (`--no-key`).
+    pub key: Option<protocol::auth::Key>,
 }
 
 /// What the serving counted.
@@ -36,8 +39,14 @@ pub struct ServeOptions {
 pub struct ServeStats {
     /// Uplink messages decoded from the station.
     pub uplink_messages: u64,
-    /// Uplink frames the decoder refused (damaged, unknown version, ...).
+    /// Uplink frames refused: damaged, of another version, or (keyed) failing authentication.
     pub uplink_refused: u64,
+    /// How the radio is secured: `hmac-sha256-64`, or `none (development)`.
+    pub link_security: &'static str,
+    /// The authentication's counters: sessions, frames accepted and refused by reason (docs/security.md).
+    pub auth: protocol::auth::AuthCounters,
+    /// Downlink messages not sent because no session was up yet (keyed link).
+    pub downlink_before_session: u64,
     /// Downlink messages sent.
     pub downlink_messages: u64,
     /// Frames each camera sent to its client (forward, down).
@@ -182,9 +191,13 @@ pub fn serve(
     };
     link.set_nonblocking(true)?;
     link.set_nodelay(true)?;
-    let mut decoder = protocol::frame::Decoder::new();
+    let mut security = LinkSecurity::new(protocol::auth::Role::Vehicle, opts.key);
+    stats.link_security = security.describe();
+    let mut receiver = LinkReceiver::default();
+    // The nonce of the next session, drawn before it is needed (the handshake runs byte by byte).
+    let mut next_nonce = random_nonce()?;
+    let mut armed = false;
     let mut buf = [0u8; 4096];
-    let mut out = [0u8; protocol::frame::MAX_FRAME];
     let end_us = (duration_s * 1e6).round() as u64;
     // The simulation is paced by the monotonic clock from here; frames are stamped on the machine's
     // system clock at their capture (`capture_stamp`).
@@ -204,13 +217,23 @@ pub fn serve(
                         break;
                     }
                     Ok(n) => {
+                        let now_us = (sil.time_s() * 1e6) as u64;
                         for &b in &buf[..n] {
-                            match decoder.push::<Uplink>(b) {
-                                Some(Ok(m)) => {
+                            let nonce = next_nonce;
+                            match receiver.push::<Uplink>(&mut security, b, now_us, armed, || nonce) {
+                                Some(Received::Message(m)) => {
                                     stats.uplink_messages += 1;
                                     sil.uplink(m);
                                 }
-                                Some(Err(_)) => stats.uplink_refused += 1,
+                                Some(Received::SessionStarted(welcome)) => {
+                                    next_nonce = random_nonce()?;
+                                    if let Some(w) = welcome
+                                        && write_all_nonblocking(&mut link, &w).is_err()
+                                    {
+                                        station_gone = true;
+                                    }
+                                }
+                                Some(Received::Refused) => stats.uplink_refused += 1,
                                 None => {}
                             }
                         }
@@ -247,11 +270,20 @@ pub fn serve(
                     d.send(f, capture_stamp(unix_us, wall_us, t_us));
                 }
             }
+            for m in &downlink {
+                if let Some(t) = m.telemetry() {
+                    armed = t.mode != control_core::FlightMode::Disarmed;
+                }
+            }
             if !station_gone {
                 for m in downlink {
-                    if let Ok(bytes) = protocol::frame::encode(&m, &mut out) {
+                    if !security.ready() {
+                        stats.downlink_before_session += 1;
+                        continue;
+                    }
+                    if let Ok(bytes) = security.frame(&m) {
                         // A radio drops what it cannot send; the socket is local and never full in practice.
-                        match write_all_nonblocking(&mut link, bytes) {
+                        match write_all_nonblocking(&mut link, &bytes) {
                             Ok(()) => stats.downlink_messages += 1,
                             Err(_) => station_gone = true,
                         }
@@ -275,6 +307,7 @@ pub fn serve(
     stats.frames_sent =
         [forward.sent.load(Ordering::Relaxed), down.as_ref().map_or(0, |d| d.sent.load(Ordering::Relaxed))];
     stats.frames_dropped = [forward.dropped, down.as_ref().map_or(0, |d| d.dropped)];
+    stats.auth = security.counters();
     if link.flush().is_err() {
         // The station hung up; what it did not take is counted in neither direction's messages.
     }

@@ -45,6 +45,7 @@ fn start_vehicle(out: &Path, args: &[&str]) -> (Killed, std::collections::HashMa
             .args(["fly", "--serve-link", "tcp:127.0.0.1:0", "--serve-forward", "tcp:127.0.0.1:0"])
             .args(["--serve-down", "tcp:127.0.0.1:0"])
             .args(args)
+            .args(if args.contains(&"--key") { &[][..] } else { &["--no-key"][..] })
             .arg("--out")
             .arg(out)
             .stdout(Stdio::piped())
@@ -78,6 +79,7 @@ fn fly_hover(
         Command::new(env!("CARGO_BIN_EXE_sim-host"))
             .args(["station", "--link", link, "--forward", &ports["forward"], "--down", &ports["down"]])
             .args(extra)
+            .args(if extra.contains(&"--key") { &[][..] } else { &["--no-key"][..] })
             .args(["--script", "hover", "--duration", "40"])
             .arg("--out")
             .arg(dir.join("station"))
@@ -105,12 +107,24 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
     let _serial = one_at_a_time();
     let dir = std::env::temp_dir().join(format!("station-e2e-{}", std::process::id()));
     std::fs::remove_dir_all(&dir).ok();
+    // A keyed radio (docs/security.md), recorded on its way up for the replay attack below.
+    let key = keygen(&dir);
     let (vehicle, ports) = start_vehicle(
         &dir.join("vehicle"),
-        &["--no-plots", "--duration", "40", "--seed", "2", "--connect-timeout", "30"],
+        &["--no-plots", "--duration", "40", "--seed", "2", "--connect-timeout", "30", "--key", &key],
     );
-    let (v, s) = fly_hover(vehicle, &ports, &ports["link"], &[], &dir);
+    let (relay, capture) = recording_relay(&ports["link"]);
+    let (v, s) = fly_hover(vehicle, &ports, &relay, &["--key", &key], &dir);
     eprintln!("vehicle: {}\nstation: {}", v["virtual_vehicle"], s);
+    // Every frame each way was authenticated, in one session; nothing refused.
+    let (va, sa) = (&v["virtual_vehicle"]["auth"], &s["auth"]);
+    assert_eq!(
+        (s["link_security"].as_str(), v["virtual_vehicle"]["link_security"].as_str()),
+        (Some("hmac-sha256-64"), Some("hmac-sha256-64"))
+    );
+    assert_eq!((va["sessions"].as_u64(), sa["sessions"].as_u64()), (Some(1), Some(1)), "{va} {sa}");
+    assert!(va["ok"].as_u64().unwrap() > 1000 && sa["ok"].as_u64().unwrap() > 100, "{va} {sa}");
+    assert_eq!((va["bad_tag"].as_u64(), sa["bad_tag"].as_u64()), (Some(0), Some(0)));
     // The vehicle flew the mission the station commanded and ended on the floor, disarmed.
     assert_eq!(v["landed"], true, "{v}");
     assert_eq!(v["crashed"], false);
@@ -151,7 +165,73 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
     assert_eq!(v["virtual_vehicle"]["uplink_refused"], 0);
     assert_eq!(s["link_decoder"]["bad_crc"], 0);
     check_station_log(&dir.join("station"), &s);
+
+    // The whole station session, replayed into a fresh vehicle with the same key: the replayed hello starts
+    // a session the replay cannot key, and every command fails its tag. Nothing is armed.
+    let captured = capture.lock().unwrap().clone();
+    assert!(captured.len() > 10_000, "{} bytes captured", captured.len());
+    let (mut fresh, ports) = start_vehicle(
+        &dir.join("replayed"),
+        &["--no-plots", "--no-log", "--duration", "3", "--seed", "2", "--key", &key],
+    );
+    let mut radio = std::net::TcpStream::connect(ports["link"].trim_start_matches("tcp:")).unwrap();
+    std::io::Write::write_all(&mut radio, &captured).unwrap();
+    let end = wait(&mut fresh, Duration::from_secs(30), "the replayed-into vehicle");
+    drop(radio);
+    assert!(end.success());
+    let r = read_json(&dir.join("replayed").join("summary.json"));
+    let modes: Vec<&str> =
+        r["modes"].as_array().unwrap().iter().map(|m| m["mode"].as_str().unwrap()).collect();
+    assert_eq!(modes, ["Disarmed"], "{r}");
+    let (rv, ra) = (&r["virtual_vehicle"], &r["virtual_vehicle"]["auth"]);
+    assert_eq!(rv["uplink_messages"], 0, "{rv}");
+    assert_eq!(ra["ok"], 0, "{ra}");
+    assert!(ra["bad_tag"].as_u64().unwrap() > 1000, "{ra}");
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A radio key made by `sim-host keygen` in `dir`.
+fn keygen(dir: &Path) -> String {
+    std::fs::create_dir_all(dir).unwrap();
+    let p = dir.join("radio.key");
+    let r = Command::new(env!("CARGO_BIN_EXE_sim-host")).args(["keygen", "--out"]).arg(&p).output().unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    p.to_string_lossy().into_owned()
+}
+
+/// A relay on a free port between the station and the vehicle's radio `vehicle_link` that records every byte
+/// the station sends, as a receiver on the radio's frequency would.
+fn recording_relay(vehicle_link: &str) -> (String, std::sync::Arc<std::sync::Mutex<Vec<u8>>>) {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = format!("tcp:{}", listener.local_addr().unwrap());
+    let target = vehicle_link.trim_start_matches("tcp:").to_string();
+    let capture = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let cap = capture.clone();
+    std::thread::spawn(move || {
+        let Ok((station, _)) = listener.accept() else { return };
+        let Ok(vehicle) = std::net::TcpStream::connect(&target) else { return };
+        let (mut s_in, mut v_out) = (station.try_clone().unwrap(), vehicle.try_clone().unwrap());
+        let up = std::thread::spawn(move || {
+            let mut buf = [0u8; 4096];
+            while let Ok(n) = std::io::Read::read(&mut s_in, &mut buf) {
+                if n == 0 || std::io::Write::write_all(&mut v_out, &buf[..n]).is_err() {
+                    break;
+                }
+                cap.lock().unwrap().extend_from_slice(&buf[..n]);
+            }
+            v_out.shutdown(std::net::Shutdown::Write).ok();
+        });
+        let (mut v_in, mut s_out) = (vehicle, station);
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = std::io::Read::read(&mut v_in, &mut buf) {
+            if n == 0 || std::io::Write::write_all(&mut s_out, &buf[..n]).is_err() {
+                break;
+            }
+        }
+        s_out.shutdown(std::net::Shutdown::Write).ok();
+        up.join().ok();
+    });
+    (addr, capture)
 }
 
 /// Rows of an exported CSV topic (0 when the topic is absent).
@@ -207,7 +287,14 @@ fn a_vehicle_that_does_not_answer_is_named_and_the_log_so_far_kept() {
         drop((a, b));
     });
     let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
-        .args(["station", "--link", &format!("tcp:{link}"), "--forward", &format!("tcp:{forward}")])
+        .args([
+            "station",
+            "--no-key",
+            "--link",
+            &format!("tcp:{link}"),
+            "--forward",
+            &format!("tcp:{forward}"),
+        ])
         .args(["--answer-timeout", "1"])
         .arg("--out")
         .arg(&dir)
@@ -243,7 +330,14 @@ fn a_station_without_a_vehicle_says_so() {
     // A port nobody listens on: bind one, note it, free it.
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
     let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
-        .args(["station", "--link", &format!("tcp:127.0.0.1:{port}"), "--forward", "tcp:127.0.0.1:1"])
+        .args([
+            "station",
+            "--no-key",
+            "--link",
+            &format!("tcp:127.0.0.1:{port}"),
+            "--forward",
+            "tcp:127.0.0.1:1",
+        ])
         .arg("--out")
         .arg(&dir)
         .output()
@@ -253,7 +347,14 @@ fn a_station_without_a_vehicle_says_so() {
     assert!(err.contains("--link") && err.contains(&port.to_string()), "{err}");
     assert!(!err.contains("panicked"), "{err}");
     let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
-        .args(["station", "--link", "serial:/dev/nonexistent-radio:57600", "--forward", "tcp:127.0.0.1:1"])
+        .args([
+            "station",
+            "--no-key",
+            "--link",
+            "serial:/dev/nonexistent-radio:57600",
+            "--forward",
+            "tcp:127.0.0.1:1",
+        ])
         .arg("--out")
         .arg(&dir)
         .output()
@@ -279,7 +380,16 @@ fn a_calibration_of_another_size_than_the_stream_is_refused_with_both_sizes() {
     let (vehicle, ports) =
         start_vehicle(&dir.join("vehicle"), &["--no-plots", "--no-log", "--duration", "20"]);
     let out = Command::new(exe)
-        .args(["station", "--link", &ports["link"], "--forward", &ports["forward"], "--down", &ports["down"]])
+        .args([
+            "station",
+            "--no-key",
+            "--link",
+            &ports["link"],
+            "--forward",
+            &ports["forward"],
+            "--down",
+            &ports["down"],
+        ])
         .arg("--calib-forward")
         .arg(&calib)
         .args(["--duration", "20"])
@@ -305,6 +415,7 @@ fn ctrl_c_ends_both_sides_with_their_outputs_written() {
         Command::new(exe)
             .args([
                 "station",
+                "--no-key",
                 "--link",
                 &ports["link"],
                 "--forward",
@@ -353,7 +464,16 @@ fn a_script_file_arms_and_its_kill_stops_the_motors_at_once() {
     let (mut vehicle, ports) =
         start_vehicle(&dir.join("vehicle"), &["--no-plots", "--no-log", "--duration", "9", "--seed", "3"]);
     let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
-        .args(["station", "--link", &ports["link"], "--forward", &ports["forward"], "--down", &ports["down"]])
+        .args([
+            "station",
+            "--no-key",
+            "--link",
+            &ports["link"],
+            "--forward",
+            &ports["forward"],
+            "--down",
+            &ports["down"],
+        ])
         .arg("--script")
         .arg(&script)
         .args(["--duration", "7"])
@@ -385,7 +505,15 @@ fn a_script_file_arms_and_its_kill_stops_the_motors_at_once() {
     // A script file with a mistake is refused naming the file and the line.
     std::fs::write(&script, "2.5 arm\n3 fly\n").unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
-        .args(["station", "--link", "tcp:127.0.0.1:1", "--forward", "tcp:127.0.0.1:1", "--script"])
+        .args([
+            "station",
+            "--no-key",
+            "--link",
+            "tcp:127.0.0.1:1",
+            "--forward",
+            "tcp:127.0.0.1:1",
+            "--script",
+        ])
         .arg(&script)
         .arg("--out")
         .arg(dir.join("bad"))
@@ -474,12 +602,15 @@ fn the_compact_mode_flies_over_a_57600_baud_radio_on_a_pseudo_terminal() {
     let _serial = one_at_a_time();
     let dir = std::env::temp_dir().join(format!("station-57600-{}", std::process::id()));
     std::fs::remove_dir_all(&dir).ok();
+    // Keyed: the budget holds with the tags.
+    let key = keygen(&dir);
     let (vehicle, ports) = start_vehicle(
         &dir.join("vehicle"),
-        &["--no-plots", "--duration", "40", "--seed", "2", "--connect-timeout", "30"],
+        &["--no-plots", "--duration", "40", "--seed", "2", "--connect-timeout", "30", "--key", &key],
     );
     let (tty, radio) = paced_radio(&ports["link"], 57_600);
-    let (v, s) = fly_hover(vehicle, &ports, &format!("serial:{tty}:57600"), &["--compact"], &dir);
+    let (v, s) =
+        fly_hover(vehicle, &ports, &format!("serial:{tty}:57600"), &["--compact", "--key", &key], &dir);
     let (up, down, dropped) = (
         radio[0].load(Ordering::Relaxed),
         radio[1].load(Ordering::Relaxed),

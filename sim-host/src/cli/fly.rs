@@ -1,6 +1,6 @@
 //! `sim-host fly`: a scenario flown in simulation.
 use super::common::{progress_bar, rtf_text};
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 use sim_host::Scenario;
 use std::path::PathBuf;
@@ -96,6 +96,14 @@ pub(crate) struct FlyArgs {
     /// With --serve-link: how long to wait for the station to connect to the radio (s).
     #[arg(long, default_value_t = 60.0)]
     pub(crate) connect_timeout: f64,
+    /// With --serve-link: the radio's key (`sim-host keygen --out FILE`, mode 0600): only a station with the
+    /// same key may command the vehicle (docs/security.md).
+    #[arg(long, value_name = "FILE", requires = "serve_link", conflicts_with = "no_key")]
+    pub(crate) key: Option<PathBuf>,
+    /// With --serve-link: an unauthenticated radio, for development only: anyone on the radio may command
+    /// the vehicle.
+    #[arg(long, requires = "serve_link")]
+    pub(crate) no_key: bool,
 }
 pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
     use sim_host::fly::{FlyOptions, fly};
@@ -154,6 +162,19 @@ pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
         serve: match &a.serve_link {
             None => None,
             Some(link) => {
+                let key = match (&a.key, a.no_key) {
+                    (Some(f), _) => Some(sim_host::link_key::read_key(f).context("--key")?),
+                    (None, true) => {
+                        eprintln!(
+                            "the radio is unauthenticated (--no-key): anyone on it may command the vehicle"
+                        );
+                        None
+                    }
+                    (None, false) => bail!(
+                        "--serve-link needs --key FILE (`sim-host keygen --out FILE`, the station's key) or, for \
+                         development only, --no-key"
+                    ),
+                };
                 // Ctrl-C ends the real-time flight with its summary and log written.
                 let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
                 let flag = stop.clone();
@@ -165,6 +186,7 @@ pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
                     down: a.serve_down.clone(),
                     connect_timeout_s: a.connect_timeout,
                     stop,
+                    key,
                 })
             }
         },

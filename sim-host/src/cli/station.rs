@@ -64,6 +64,13 @@ pub(crate) struct StationArgs {
     /// clock sync; `sim-host export` reads it), written also when the run ends on an error.
     #[arg(long)]
     pub(crate) out: PathBuf,
+    /// The radio's key (`sim-host keygen --out FILE`, mode 0600), the vehicle's too: every frame each way
+    /// is authenticated and replay-protected (docs/security.md).
+    #[arg(long, value_name = "FILE", conflicts_with = "no_key")]
+    pub(crate) key: Option<PathBuf>,
+    /// An unauthenticated radio, for development only: anyone on it may command the vehicle.
+    #[arg(long)]
+    pub(crate) no_key: bool,
 }
 
 pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
@@ -94,6 +101,16 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
             Script::Timed(parse_script(file, &text).map_err(|e| anyhow::anyhow!("--script {e}"))?)
         }
     };
+    let key = match (&a.key, a.no_key) {
+        (Some(f), _) => Some(sim_host::link_key::read_key(f).context("--key")?),
+        (None, true) => {
+            eprintln!("the radio is unauthenticated (--no-key): anyone on it may command the vehicle");
+            None
+        }
+        (None, false) => anyhow::bail!(
+            "give --key FILE (`sim-host keygen --out FILE`, the vehicle's key) or, for development only, --no-key"
+        ),
+    };
     let link = ground_station::link::LinkSpec::parse(&a.link).map_err(|e| anyhow::anyhow!("--link {e}"))?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let opts = sim_host::station::StationOptions {
@@ -107,6 +124,7 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
         log: log_file.clone(),
         frames: a.frames.policy(),
         compact: a.compact,
+        key,
     };
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     // Ctrl-C ends the run with station.json written (the motors are the vehicle's: a real operator lands or
