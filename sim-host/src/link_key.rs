@@ -93,10 +93,10 @@ impl LinkSecurity {
         }
     }
 
-    /// What the status and the log header say: `hmac-sha256-64` or `none (development)`.
+    /// What the status and the log header say: `hmac-sha256-48` or `none (development)`.
     pub fn describe(&self) -> &'static str {
         match self {
-            LinkSecurity::Keyed(_) => "hmac-sha256-64",
+            LinkSecurity::Keyed(_) => "hmac-sha256-48",
             LinkSecurity::Open => "none (development)",
         }
     }
@@ -268,6 +268,6 @@ mod tests {
             ));
         }
         assert_eq!(v.counters().downgrade, 1);
-        assert_eq!((open.describe(), v.describe()), ("none (development)", "hmac-sha256-64"));
+        assert_eq!((open.describe(), v.describe()), ("none (development)", "hmac-sha256-48"));
     }
 }

@@ -119,7 +119,7 @@ pub struct StationStats {
     pub link_bytes: [u64; 2],
     /// The radio's decoder: frames refused by reason.
     pub link_decoder: protocol::frame::DecodeCounters,
-    /// How the radio is secured: `hmac-sha256-64`, or `none (development)`.
+    /// How the radio is secured: `hmac-sha256-48`, or `none (development)`.
     pub link_security: String,
     /// The downlink's authentication: sessions, frames accepted and refused by reason (docs/security.md).
     pub auth: protocol::auth::AuthCounters,

@@ -41,7 +41,7 @@ pub struct ServeStats {
     pub uplink_messages: u64,
     /// Uplink frames refused: damaged, of another version, or (keyed) failing authentication.
     pub uplink_refused: u64,
-    /// How the radio is secured: `hmac-sha256-64`, or `none (development)`.
+    /// How the radio is secured: `hmac-sha256-48`, or `none (development)`.
     pub link_security: &'static str,
     /// The authentication's counters: sessions, frames accepted and refused by reason (docs/security.md).
     pub auth: protocol::auth::AuthCounters,

@@ -120,7 +120,7 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
     let (va, sa) = (&v["virtual_vehicle"]["auth"], &s["auth"]);
     assert_eq!(
         (s["link_security"].as_str(), v["virtual_vehicle"]["link_security"].as_str()),
-        (Some("hmac-sha256-64"), Some("hmac-sha256-64"))
+        (Some("hmac-sha256-48"), Some("hmac-sha256-48"))
     );
     assert_eq!((va["sessions"].as_u64(), sa["sessions"].as_u64()), (Some(1), Some(1)), "{va} {sa}");
     assert!(va["ok"].as_u64().unwrap() > 1000 && sa["ok"].as_u64().unwrap() > 100, "{va} {sa}");

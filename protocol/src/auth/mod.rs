@@ -1,16 +1,16 @@
 //! Authenticated frames: only a station holding the vehicle's key may command it (docs/security.md).
 //!
-//! Every frame of a keyed link carries a 64-bit tag, HMAC-SHA256 truncated (RFC 2104, section 5), over its
+//! Every frame of a keyed link carries a 48-bit tag, HMAC-SHA256 truncated (RFC 2104, section 5), over its
 //! direction, kind, counter and payload, in place of the CRC-16 of the unauthenticated frame:
 //!
 //! ```text
 //! frame   = cobs(body) 0x00
-//! body    = version kind counter payload tag
-//! version = AUTH_WIRE_VERSION (2)
-//! kind    = 0 data (session key), 1 station hello, 2 vehicle welcome (both with the long-term key)
+//! body    = kind counter payload tag
+//! kind    = the first byte, in place of the unauthenticated frame's version (1): 2 data (session key),
+//!           3 station hello, 4 vehicle welcome (both with the long-term key)
 //! counter = u32 varint; data frames: 1, 2, 3, ... per direction and session; 0 in the handshake
 //! payload = postcard message (data), the station's nonce (hello), both nonces (welcome)
-//! tag     = first 8 bytes of HMAC-SHA256(key, "WLQA" direction version kind counter payload)
+//! tag     = first 6 bytes of HMAC-SHA256(key, "WLQA" direction kind counter payload)
 //! ```
 //!
 //! A session starts with a handshake: the station sends a hello with a fresh random nonce, the vehicle
@@ -27,10 +27,12 @@ use sha2::Sha256;
 
 use crate::frame::{EncodeError, MAX_FRAME, WIRE_VERSION, cobs_encode};
 
-/// Version byte of an authenticated frame.
+/// First byte of an authenticated data frame (the hello is 3, the welcome 4; an unauthenticated frame's is its
+/// wire version, 1).
 pub const AUTH_WIRE_VERSION: u8 = 2;
-/// Length of the tag (bytes): 64 bits.
-pub const TAG_LEN: usize = 8;
+/// Length of the tag (bytes): 48 bits, as MAVLink 2's signature (docs/security.md weighs it against the link
+/// budget).
+pub const TAG_LEN: usize = 6;
 /// Length of the long-term and the session keys (bytes).
 pub const KEY_LEN: usize = 32;
 /// Length of each side's handshake nonce (bytes).
@@ -39,9 +41,9 @@ pub const NONCE_LEN: usize = 16;
 /// replace it while the vehicle is armed (us): a replayed hello cannot cut a live link.
 pub const HELLO_QUIET_US: u64 = 2_000_000;
 
-const KIND_DATA: u8 = 0;
-const KIND_HELLO: u8 = 1;
-const KIND_WELCOME: u8 = 2;
+const KIND_DATA: u8 = AUTH_WIRE_VERSION;
+const KIND_HELLO: u8 = AUTH_WIRE_VERSION + 1;
+const KIND_WELCOME: u8 = AUTH_WIRE_VERSION + 2;
 const DOMAIN: &[u8; 4] = b"WLQA";
 
 /// A shared key.
@@ -254,10 +256,10 @@ fn read_varint_u32(b: &[u8]) -> Option<(u32, usize)> {
 }
 
 fn tag(key: &Key, direction: u8, kind: u8, counter: &[u8], payload: &[u8]) -> [u8; 32] {
-    mac(key, &[DOMAIN, &[direction, AUTH_WIRE_VERSION, kind], counter, payload])
+    mac(key, &[DOMAIN, &[direction, kind], counter, payload])
 }
 
-/// Seals one body (`version kind counter payload tag`) and frames it (COBS and the delimiter) into `out`.
+/// Seals one body (`kind counter payload tag`) and frames it (COBS and the delimiter) into `out`.
 fn seal_body<'a>(
     key: &Key,
     direction: u8,
@@ -269,14 +271,13 @@ fn seal_body<'a>(
     let mut raw = [0u8; MAX_FRAME];
     let mut c = [0u8; 5];
     let cn = varint_u32(counter, &mut c);
-    let n = 2 + cn + payload.len() + TAG_LEN;
+    let n = 1 + cn + payload.len() + TAG_LEN;
     if n > MAX_FRAME - 4 {
         return Err(SealError::BufferFull);
     }
-    raw[0] = AUTH_WIRE_VERSION;
-    raw[1] = kind;
-    raw[2..2 + cn].copy_from_slice(&c[..cn]);
-    raw[2 + cn..2 + cn + payload.len()].copy_from_slice(payload);
+    raw[0] = kind;
+    raw[1..1 + cn].copy_from_slice(&c[..cn]);
+    raw[1 + cn..1 + cn + payload.len()].copy_from_slice(payload);
     let t = tag(key, direction, kind, &c[..cn], payload);
     raw[n - TAG_LEN..n].copy_from_slice(&t[..TAG_LEN]);
     let len = cobs_encode(&raw[..n], out)?;
@@ -382,28 +383,27 @@ impl SecureLink {
         armed: bool,
         vehicle_nonce: impl FnOnce() -> Nonce,
     ) -> Result<Opened<T>, AuthError> {
-        match body.first() {
+        let kind = match body.first() {
             None => return Err(AuthError::Truncated),
             Some(&WIRE_VERSION) => return Err(AuthError::Downgrade),
-            Some(&AUTH_WIRE_VERSION) => {}
+            Some(&k) if (KIND_DATA..=KIND_WELCOME).contains(&k) => k,
             Some(_) => return Err(AuthError::UnknownVersion),
-        }
-        if body.len() < 3 + TAG_LEN {
+        };
+        if body.len() < 2 + TAG_LEN {
             return Err(AuthError::Truncated);
         }
-        let kind = body[1];
-        let (counter, cn) = read_varint_u32(&body[2..]).ok_or(AuthError::Truncated)?;
-        if body.len() < 2 + cn + TAG_LEN {
+        let (counter, cn) = read_varint_u32(&body[1..]).ok_or(AuthError::Truncated)?;
+        if body.len() < 1 + cn + TAG_LEN {
             return Err(AuthError::Truncated);
         }
-        let payload = &body[2 + cn..body.len() - TAG_LEN];
+        let payload = &body[1 + cn..body.len() - TAG_LEN];
         let got = &body[body.len() - TAG_LEN..];
         let direction = self.role.receives();
         let check = |key: &Key| -> Result<(), AuthError> {
             let mut m = <Hmac<Sha256> as KeyInit>::new_from_slice(key).map_err(|_| AuthError::BadTag)?;
             m.update(DOMAIN);
-            m.update(&[direction, AUTH_WIRE_VERSION, kind]);
-            m.update(&body[2..2 + cn]);
+            m.update(&[direction, kind]);
+            m.update(&body[1..1 + cn]);
             m.update(payload);
             m.verify_truncated_left(got).map_err(|_| AuthError::BadTag)
         };

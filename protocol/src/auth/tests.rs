@@ -56,17 +56,13 @@ fn a_session_carries_messages_both_ways_and_counts_them() {
     assert_eq!(st.open::<Downlink>(&b, T0, false, || nonce(0)), Ok(Opened::Message(ack)));
     assert_eq!((v.counters().ok, v.counters().sessions, v.counters().refused()), (3, 1, 0));
     assert_eq!((st.counters().ok, st.counters().sessions), (1, 1));
-    // The tag replaces the CRC: a frame costs a kind byte, its counter (1 byte up to 127, 3 bytes up to 2^21)
-    // and the 8-byte tag, less the 2-byte CRC, more than unauthenticated.
+    // The tag replaces the CRC and the kind the version byte: a frame costs its counter (1 byte up to 127,
+    // 3 bytes up to 2^21) and the 6-byte tag, less the 2-byte CRC, more than unauthenticated.
     let mut out = [0u8; MAX_FRAME];
     let plain = encode(&Uplink::Heartbeat, &mut out).unwrap().len();
     let mut out2 = [0u8; MAX_FRAME];
     let sealed = st.seal(&Uplink::Heartbeat, &mut out2).unwrap().len();
-    assert_eq!(
-        sealed,
-        plain + 1 + 1 + 8 - 2,
-        "version kind counter(1) payload tag(8) vs version payload crc(2)"
-    );
+    assert_eq!(sealed, plain + 1 + 6 - 2, "kind counter(1) payload tag(6) vs version payload crc(2)");
 }
 
 #[test]
@@ -77,7 +73,7 @@ fn forged_and_wrongly_keyed_commands_are_refused() {
     let b = seal(&mut mallory, &Uplink::Command(Command::Arm));
     assert_eq!(open_up(&mut v, &b), Err(AuthError::BadTag));
     // A hand-made frame with a guessed tag.
-    let mut forged = vec![AUTH_WIRE_VERSION, 0, 1];
+    let mut forged = vec![AUTH_WIRE_VERSION, 1];
     let mut p = [0u8; 16];
     forged.extend_from_slice(postcard::to_slice(&Uplink::Command(Command::Arm), &mut p).unwrap());
     forged.extend([0xA5; TAG_LEN]);
@@ -165,7 +161,7 @@ fn an_unauthenticated_frame_on_a_keyed_link_is_a_downgrade() {
     let old = body(encode(&Uplink::Command(Command::Arm), &mut out).unwrap());
     assert_eq!(open_up(&mut v, &old), Err(AuthError::Downgrade));
     let mut other = old.clone();
-    other[0] = 3;
+    other[0] = 9; // neither 1 (unauthenticated) nor 2-4 (keyed)
     assert_eq!(open_up(&mut v, &other), Err(AuthError::UnknownVersion));
     assert_eq!((v.counters().downgrade, v.counters().unknown_version, v.counters().ok), (1, 1, 0));
 }
@@ -207,16 +203,16 @@ fn a_vehicle_frame_reflected_back_is_refused() {
 
 #[test]
 fn golden_bytes_of_a_hello() {
-    // Pinned (docs/security.md): version 2, kind 1, counter 0, the nonce, the first 8 bytes of
-    // HMAC-SHA256(K, "WLQA" 'U' 2 1 00 nonce).
+    // Pinned (docs/security.md): kind 3 (hello), counter 0, the nonce, the first 6 bytes of
+    // HMAC-SHA256(K, "WLQA" 'U' 03 00 nonce).
     let mut st = SecureLink::new(Role::Station, [0; KEY_LEN]);
     let mut out = [0u8; MAX_FRAME];
     let b = body(st.hello([0x11; NONCE_LEN], &mut out).unwrap());
-    assert_eq!(b[..3], [AUTH_WIRE_VERSION, 1, 0]);
-    assert_eq!(b[3..3 + NONCE_LEN], [0x11; NONCE_LEN]);
-    let full = mac(&[0; KEY_LEN], &[b"WLQA", &[b'U', 2, 1], &[0], &[0x11; NONCE_LEN]]);
-    assert_eq!(b[3 + NONCE_LEN..], full[..TAG_LEN]);
-    assert_eq!(hex(&b[3 + NONCE_LEN..]), "21 5f c4 27 8f fc 22 1e");
+    assert_eq!(b[..2], [3, 0]);
+    assert_eq!(b[2..2 + NONCE_LEN], [0x11; NONCE_LEN]);
+    let full = mac(&[0; KEY_LEN], &[b"WLQA", &[b'U', 3], &[0], &[0x11; NONCE_LEN]]);
+    assert_eq!(b[2 + NONCE_LEN..], full[..TAG_LEN]);
+    assert_eq!(hex(&b[2 + NONCE_LEN..]), "21 0e 6e 08 6c 00");
     // HMAC-SHA256 itself: RFC 4231 test case 2 ("Jefe", "what do ya want for nothing?").
     let mut m = <Hmac<Sha256> as KeyInit>::new_from_slice(b"Jefe").unwrap();
     m.update(b"what do ya want for nothing?");
