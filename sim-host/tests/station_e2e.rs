@@ -630,6 +630,7 @@ fn the_compact_mode_flies_over_a_57600_baud_radio_on_a_pseudo_terminal() {
     assert_eq!(dropped, 0);
     assert!(up as f64 / secs <= 2880.0 && down as f64 / secs <= 2880.0, "{up} up, {down} down in {secs} s");
     let acc = &v["estimator"]["accepted"];
+    eprintln!("accepted: {acc}; vision {}", v["vision"]);
     assert!(acc["vision_fixes"].as_u64().unwrap() > 50 && acc["flow"].as_u64().unwrap() > 50, "{acc}");
     assert_eq!(s["link_decoder"]["bad_crc"], 0);
     std::fs::remove_dir_all(&dir).ok();
