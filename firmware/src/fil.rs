@@ -70,6 +70,10 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
                 background_cycles = board.cycles_since(t1);
                 stats.record_background(background_cycles);
             }
+            Some(Ok(FilToFc::AuthCost)) => {
+                let cost = flight_core::fil::measure_auth_cost(|| board.cycles());
+                link::send(board, &FcToFil::AuthCost(cost));
+            }
             Some(Ok(FilToFc::Stop)) => {
                 stats.link = decoder.counters();
                 board.report_and_exit(&stats);

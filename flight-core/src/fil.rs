@@ -43,6 +43,8 @@ pub enum FilToFc {
     Step(SensorStep),
     /// The run is over: report and stop.
     Stop,
+    /// Measure the keyed link's cost per frame ([`measure_auth_cost`]) and answer [`FcToFil::AuthCost`].
+    AuthCost,
 }
 
 /// Flight computer to simulator.
@@ -69,11 +71,153 @@ pub enum FcToFil {
         /// Frames solved by that background work.
         background_solves: u8,
     },
+    /// The answer to [`FilToFc::AuthCost`].
+    AuthCost(AuthCost),
+}
+
+/// The keyed link's cost on the flight computer (`protocol::auth`, docs/security.md), per frame, in the
+/// board's cycle counter's unit (under the emulator's instruction counting, as [`FcToFil::Step`]'s costs).
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize, postcard_schema::Schema,
+)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AuthCost {
+    /// Taking a station's hello and sealing the welcome (the session key derived).
+    pub handshake: u32,
+    /// Opening one uplink frame: a packed line measurement with four edges, a packed flow, a command.
+    pub open: [u32; 3],
+    /// Sealing one downlink frame: packed telemetry, a command's acknowledgement.
+    pub seal: [u32; 2],
+    /// Frames that did not open as they should: 0 unless the code is broken.
+    pub failures: u8,
+}
+
+/// Measures [`AuthCost`] with `cycles` (the board's free-running cycle counter): a station's side is played
+/// here to make the frames; only the vehicle's work is timed.
+pub fn measure_auth_cost(mut cycles: impl FnMut() -> u32) -> AuthCost {
+    use protocol::auth::{Opened, Role, SecureLink};
+    use protocol::frame::{MAX_FRAME, cobs_decode_in_place};
+    use protocol::packed::{PackedFlow, PackedTelemetry, PackedVision};
+    const KEY: [u8; 32] = [0x5A; 32];
+    let mut cost = AuthCost::default();
+    let mut station = SecureLink::new(Role::Station, KEY);
+    let mut vehicle = SecureLink::new(Role::Vehicle, KEY);
+    let mut out = [0u8; MAX_FRAME];
+    let mut body = [0u8; MAX_FRAME];
+    // A frame's body as the decoder gives it (COBS undone, no delimiter).
+    fn unframe(frame: &[u8], body: &mut [u8; MAX_FRAME]) -> usize {
+        let n = frame.len().saturating_sub(1).min(body.len());
+        body[..n].copy_from_slice(&frame[..n]);
+        cobs_decode_in_place(&mut body[..n]).unwrap_or(0)
+    }
+    fn fail(ok: bool, c: &mut AuthCost) {
+        if !ok {
+            c.failures = c.failures.saturating_add(1);
+        }
+    }
+    // The handshake.
+    let n = match station.hello([1; 16], &mut out) {
+        Ok(f) => unframe(f, &mut body),
+        Err(_) => 0,
+    };
+    let t0 = cycles();
+    let started =
+        matches!(vehicle.open::<Uplink>(&body[..n], 0, false, || [2; 16]), Ok(Opened::SessionStarted));
+    let welcome_ok = vehicle.welcome(&mut out).is_ok();
+    cost.handshake = cycles().wrapping_sub(t0);
+    fail(started && welcome_ok, &mut cost);
+    let n = match vehicle.welcome(&mut out) {
+        Ok(f) => unframe(f, &mut body),
+        Err(_) => 0,
+    };
+    let ok = matches!(station.open::<Downlink>(&body[..n], 0, false, || [0; 16]), Ok(Opened::SessionStarted));
+    fail(ok, &mut cost);
+    // Uplink frames, opened.
+    let e = vision_core::EdgeStats {
+        centroid: geometry::Vec2::new(0.1234, -0.2345),
+        normal: geometry::Vec2::new(0.0123, 0.9999),
+        count: 612,
+        spread: 0.35,
+        rms: 0.0012,
+    };
+    let vision = Uplink::PackedVision(PackedVision::pack(&protocol::VisionMeasurement {
+        capture_time_us: 31_234_567,
+        frame_seq: 937,
+        observation: Some(vision_core::LineObservation {
+            top: e,
+            bottom: e,
+            start_end: Some(e),
+            finish_end: Some(e),
+        }),
+    }));
+    let flow = Uplink::PackedFlow(PackedFlow::pack(&protocol::FlowMeasurement {
+        t_prev_us: 10_000_000,
+        t_next_us: 10_016_667,
+        frame_seq: 600,
+        result: Ok(vision_core::flow::FlowStats {
+            flow: geometry::Vec2::new(-0.0123, 0.0041),
+            predicted_rotation: Vec3::new(0.001, -0.002, 0.0005),
+            mean_pos: geometry::Vec2::new(0.01, -0.02),
+            mean_sq: [0.09, 0.05, -0.001],
+            inliers: 44,
+            selected: 48,
+            residual_rms: 0.0004,
+            median_flow_px: geometry::Vec2::new(-1.7, 0.57),
+            quality: 44.0 / 48.0,
+        }),
+    }));
+    let command = Uplink::Command(control_core::Command::Arm);
+    for (k, m) in [vision, flow, command].iter().enumerate() {
+        let n = match station.seal(m, &mut out) {
+            Ok(f) => unframe(f, &mut body),
+            Err(_) => 0,
+        };
+        let t0 = cycles();
+        let got = vehicle.open::<Uplink>(&body[..n], 0, true, || [2; 16]);
+        cost.open[k] = cycles().wrapping_sub(t0);
+        fail(got == Ok(Opened::Message(*m)), &mut cost);
+    }
+    // Downlink frames, sealed.
+    let telemetry = Downlink::PackedTelemetry(PackedTelemetry::pack(&protocol::Telemetry {
+        time_us: 12_345_000,
+        mode: control_core::FlightMode::Tracking,
+        failsafe: None,
+        estimate: control_core::estimator::StateEstimate::default(),
+        setpoint: control_core::laws::Setpoint::default(),
+        motors_rad_s: [812.5, 799.1, 805.0, 820.3],
+        fix_age_s: 0.021,
+        step_cost: 41_234,
+    }));
+    let ack = Downlink::CommandAck(control_core::CommandResult::Accepted(control_core::Command::Arm));
+    for (k, m) in [telemetry, ack].iter().enumerate() {
+        let t0 = cycles();
+        let sealed = vehicle.seal(m, &mut out).map(|f| f.len());
+        cost.seal[k] = cycles().wrapping_sub(t0);
+        let n = match sealed {
+            Ok(len) => unframe(&out[..len], &mut body),
+            Err(_) => 0,
+        };
+        let got = station.open::<Downlink>(&body[..n], 0, false, || [0; 16]);
+        fail(got == Ok(Opened::Message(*m)), &mut cost);
+    }
+    cost
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_auth_cost_measurement_opens_and_seals_every_frame() {
+        // A counter that ticks once a read: every timed section reads it twice, so each cost is 1.
+        let mut t = 0u32;
+        let c = measure_auth_cost(|| {
+            t += 1;
+            t
+        });
+        assert_eq!(c.failures, 0, "{c:?}");
+        assert_eq!((c.handshake, c.open, c.seal), (1, [1; 3], [1; 2]));
+    }
     use crate::{FlightConfig, FlightStack, StepInput};
     use protocol::frame::{Decoder, MAX_FRAME, encode};
 

@@ -335,7 +335,26 @@ impl QemuFc {
                     let msg = self.lost("the firmware restarted (hello again)");
                     bail!(msg);
                 }
+                FcToFil::AuthCost(_) => {
+                    let msg = self.lost("an answer to no question (AuthCost during a step)");
+                    bail!(msg);
+                }
             }
+        }
+    }
+
+    /// The keyed link's cost per frame on the firmware (`flight_core::fil::measure_auth_cost`), in
+    /// instructions.
+    pub fn auth_cost(&mut self) -> Result<flight_core::fil::AuthCost> {
+        self.send(&FilToFc::AuthCost)?;
+        match self.receive(self.opts.step_timeout, "auth cost")? {
+            FcToFil::AuthCost(c) => Ok(flight_core::fil::AuthCost {
+                handshake: to_instructions(c.handshake),
+                open: c.open.map(to_instructions),
+                seal: c.seal.map(to_instructions),
+                failures: c.failures,
+            }),
+            other => bail!("the firmware answered the auth-cost request with {other:?}"),
         }
     }
 

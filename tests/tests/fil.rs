@@ -105,3 +105,41 @@ fn firmware_in_qemu_flies_like_the_simulator_bit_for_bit() {
     );
     assert!(cost.stack_report.is_some_and(|s| s.contains("free=")));
 }
+
+/// The keyed link's cost on the Cortex-M4 (docs/security.md): instructions per frame of each kind, and what
+/// the default rates take of the core.
+#[test]
+fn the_keyed_link_costs_per_frame_in_qemu() {
+    if !available() {
+        return;
+    }
+    let mut fc = sim_host::fil::QemuFc::start(&QemuOptions::new(elf())).unwrap();
+    let c = fc.auth_cost().unwrap();
+    fc.finish().unwrap();
+    // A second at the default rates: 30 line and 60 flow measurements and about 12 other frames (time sync,
+    // heartbeats) opened; 25 telemetry messages and 10 time-sync answers sealed.
+    let per_s = 30 * c.open[0] as u64
+        + 60 * c.open[1] as u64
+        + 12 * c.open[2] as u64
+        + 25 * c.seal[0] as u64
+        + 10 * c.seal[1] as u64;
+    let share = per_s as f64 / 168e6;
+    eprintln!(
+        "keyed link on the Cortex-M4, instructions per frame: handshake {}, open vision {} flow {} command {}, seal \
+         telemetry {} ack {}; {per_s} a second at the default rates, {:.2} % of the core",
+        c.handshake,
+        c.open[0],
+        c.open[1],
+        c.open[2],
+        c.seal[0],
+        c.seal[1],
+        100.0 * share
+    );
+    assert_eq!(c.failures, 0, "{c:?}");
+    // The most one control period can bring (a line and a flow measurement arrive, telemetry leaves) is
+    // within one step's budget (STEP_BUDGET_INSTRUCTIONS, 20 % of the period) on its own; with the step's own
+    // worst case beside it, it would not be, so the firmware must authenticate outside the timed step
+    // (docs/security.md).
+    let worst_period = c.open[0] + c.open[1] + c.seal[0];
+    assert!(worst_period < STEP_BUDGET_INSTRUCTIONS, "{worst_period} instructions in one period");
+}
