@@ -189,9 +189,7 @@ fn replay_from_frames_reruns_the_vision_and_finds_a_changed_frame() {
         .records
         .iter()
         .find_map(|(_, r)| match r {
-            LogRecord::Link(protocol::Uplink::PackedVision(v))
-                if v.observation.is_some() && v.frame_seq >= 30 =>
-            {
+            LogRecord::Link(protocol::Uplink::Vision(v)) if v.observation.is_some() && v.frame_seq >= 30 => {
                 Some(v.frame_seq)
             }
             _ => None,
