@@ -407,6 +407,7 @@ fn station_loop(
     };
     let start = Instant::now();
     let mut next_sync = 0.0;
+    let mut sync_dither = now_unix_us() | 1;
     let mut next_announce = 0.0;
     let mut next_heartbeat = 0.0;
     let mut prev_down: Option<(u64, u32)> = None;
@@ -489,7 +490,14 @@ fn station_loop(
         if t >= next_sync {
             send(&Uplink::TimeSync { station_time_us: now_unix_us() }, &mut writer, rec)?;
             stats.uplink_other += 1;
-            next_sync += 1.0 / if opts.compact { COMPACT_TIME_SYNC_HZ } else { TIME_SYNC_HZ };
+            // Dithered (0.5 to 1.5 periods): a request period that divides the telemetry's would meet the
+            // vehicle's answers queued behind the same telemetry frame every time on a slow radio, and the
+            // clock sync would never see a quick exchange.
+            sync_dither ^= sync_dither << 13;
+            sync_dither ^= sync_dither >> 7;
+            sync_dither ^= sync_dither << 17;
+            let u = (sync_dither >> 11) as f64 / (1u64 << 53) as f64;
+            next_sync += (0.5 + u) / if opts.compact { COMPACT_TIME_SYNC_HZ } else { TIME_SYNC_HZ };
         }
         // The compact mode announced: the vehicle's telemetry period, sent once a second until answered.
         if opts.compact && stats.compact_announced.is_none() && telemetry.is_some() && t >= next_announce {
