@@ -221,23 +221,10 @@ impl Decoder {
     /// Feeds one byte. Returns `Some(result)` when the byte completed a frame (an empty frame, two delimiters
     /// in a row, is skipped silently).
     pub fn push<T: DeserializeOwned>(&mut self, byte: u8) -> Option<Result<T, FrameError>> {
-        if byte != 0 {
-            if self.len < self.buf.len() {
-                self.buf[self.len] = byte;
-                self.len += 1;
-            } else {
-                self.overflow = true;
-            }
-            return None;
-        }
-        let len = core::mem::replace(&mut self.len, 0);
-        if core::mem::replace(&mut self.overflow, false) {
-            self.counters.oversized += 1;
-            return Some(Err(FrameError::Oversized));
-        }
-        if len == 0 {
-            return None;
-        }
+        let len = match self.collect(byte)? {
+            Ok(len) => len,
+            Err(e) => return Some(Err(e)),
+        };
         let r = self.decode_frame::<T>(len);
         match &r {
             Ok(_) => self.counters.ok += 1,
@@ -255,6 +242,22 @@ impl Decoder {
     /// for [`crate::auth::SecureLink::open`] (which counts what it accepts and refuses), or the framing error
     /// (COBS, oversized), counted here.
     pub fn push_body(&mut self, byte: u8) -> Option<Result<&[u8], FrameError>> {
+        let len = match self.collect(byte)? {
+            Ok(len) => len,
+            Err(e) => return Some(Err(e)),
+        };
+        match cobs_decode_in_place(&mut self.buf[..len]) {
+            Some(n) => Some(Ok(&self.buf[..n])),
+            None => {
+                self.counters.cobs += 1;
+                Some(Err(FrameError::Cobs))
+            }
+        }
+    }
+
+    /// Buffers one byte; at a delimiter, the length of the frame collected (an empty frame, two delimiters in
+    /// a row, is skipped silently; an oversized one is counted).
+    fn collect(&mut self, byte: u8) -> Option<Result<usize, FrameError>> {
         if byte != 0 {
             if self.len < self.buf.len() {
                 self.buf[self.len] = byte;
@@ -272,13 +275,7 @@ impl Decoder {
         if len == 0 {
             return None;
         }
-        match cobs_decode_in_place(&mut self.buf[..len]) {
-            Some(n) => Some(Ok(&self.buf[..n])),
-            None => {
-                self.counters.cobs += 1;
-                Some(Err(FrameError::Cobs))
-            }
-        }
+        Some(Ok(len))
     }
 
     fn decode_frame<T: DeserializeOwned>(&mut self, len: usize) -> Result<T, FrameError> {
