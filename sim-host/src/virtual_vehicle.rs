@@ -208,6 +208,21 @@ pub fn serve(
         if stop.load(Ordering::Relaxed) {
             break;
         }
+        // Simulate up to the wall clock first, the clock read again at each step (the steps take time: a
+        // catch-up after the process waited for a core renders frames). The uplink read below is then
+        // handled at about the simulated time it was read, as a board's clock, which never stalls, would
+        // stamp it: read before the catch-up, a time-sync request that arrived during a 40 ms stall was
+        // answered with a clock 40 ms behind the station's, outside the exchange's causal interval.
+        let mut running = true;
+        let mut n = 0;
+        while running && (sil.time_s() * 1e6) as u64 <= start.elapsed().as_micros() as u64 && n < 100 {
+            running = sil.step(end_us);
+            n += 1;
+        }
+        let wall_us = start.elapsed().as_micros() as u64;
+        let unix_us = now_unix_us();
+        let lag = wall_us as f64 * 1e-6 - sil.time_s();
+        stats.max_lag_s = stats.max_lag_s.max(lag);
         // The uplink that arrived.
         if !station_gone {
             loop {
@@ -246,17 +261,6 @@ pub fn serve(
                 }
             }
         }
-        // Simulate up to the wall clock (a control period at a time, at most).
-        let wall_us = start.elapsed().as_micros() as u64;
-        let unix_us = now_unix_us();
-        let mut running = true;
-        let mut n = 0;
-        while running && (sil.time_s() * 1e6) as u64 <= wall_us && n < 50 {
-            running = sil.step(end_us);
-            n += 1;
-        }
-        let lag = wall_us as f64 * 1e-6 - sil.time_s();
-        stats.max_lag_s = stats.max_lag_s.max(lag);
         // What the vehicle exposes.
         if let Some(p) = sil.ports() {
             let frames: Vec<(u64, Frame)> = p.forward.drain(..).collect();

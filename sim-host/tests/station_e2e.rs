@@ -114,7 +114,12 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
         &["--no-plots", "--duration", "40", "--seed", "2", "--connect-timeout", "30", "--key", &key],
     );
     let (relay, capture) = recording_relay(&ports["link"]);
+    // Both cores kept busy by something else, as on a shared CI machine: the vehicle's process waits for a
+    // core now and then (a stall of 30-40 ms once put its clock that far outside the clock sync's causal
+    // intervals).
+    let busy = (BusyCore::start(), BusyCore::start());
     let (v, s) = fly_hover(vehicle, &ports, &relay, &["--key", &key], &dir);
+    drop(busy);
     eprintln!("vehicle: {}\nstation: {}", v["virtual_vehicle"], s);
     // Every frame each way was authenticated, in one session; nothing refused.
     let (va, sa) = (&v["virtual_vehicle"]["auth"], &s["auth"]);
@@ -147,10 +152,11 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
         (v["vision"]["solved"].as_u64().unwrap(), v["vision"]["rejected"].as_u64().unwrap());
     assert!(rejected * 20 < solved, "{}", v["vision"]);
     assert!(s["forward_measured"].as_u64().unwrap() > 100 && s["flow_sent"].as_u64().unwrap() > 100, "{s}");
-    // The clock sync knew the vehicle's clock: its bound (0.1-0.7 ms measured on an idle machine, 6 ms with
-    // a build beside it) well under a frame period (33 ms); the 1 ms requirement is the clock sync's own test
-    // (ground_station::clock, with a drifting clock and jitter).
-    assert!(s["clock_bound_ms"].as_f64().unwrap() < 20.0, "{s}");
+    // The clock sync knew the vehicle's clock: its bound well under a frame period (33 ms). With two cores
+    // kept busy beside the flight, measured 1.3-2.3 ms; 8.8-13 ms (and 32-36 ms with a shell loop beside it)
+    // when the virtual vehicle read its radio before catching its simulation up with the wall clock. The
+    // 1 ms requirement is the clock sync's own test (ground_station::clock, with a drifting clock and jitter).
+    assert!(s["clock_bound_ms"].as_f64().unwrap() < 5.0, "{s}");
     assert!(
         s["command_acks"].as_array().unwrap().iter().any(|a| a.as_str().unwrap().contains("Accepted(Land)"))
     );
@@ -188,6 +194,32 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
     assert_eq!(ra["ok"], 0, "{ra}");
     assert!(ra["bad_tag"].as_u64().unwrap() > 1000, "{ra}");
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A thread that keeps one core busy until dropped (also when the test fails).
+struct BusyCore(std::sync::Arc<std::sync::atomic::AtomicBool>, Option<std::thread::JoinHandle<()>>);
+
+impl BusyCore {
+    fn start() -> Self {
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let s = stop.clone();
+        let spin = std::thread::spawn(move || {
+            let mut x = 0u64;
+            while !s.load(std::sync::atomic::Ordering::Relaxed) {
+                x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+            }
+        });
+        Self(stop, Some(spin))
+    }
+}
+
+impl Drop for BusyCore {
+    fn drop(&mut self) {
+        self.0.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(t) = self.1.take() {
+            t.join().ok();
+        }
+    }
 }
 
 /// A radio key made by `sim-host keygen` in `dir`.
