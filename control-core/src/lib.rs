@@ -197,6 +197,9 @@ pub enum Refusal {
     NoLink,
     /// Arming after a fault: disarm first.
     FaultLatched,
+    /// Arming over a radio link that is not authenticated (no key provisioned), by a firmware built without
+    /// the `unauthenticated-link` feature (docs/security.md). Refused by the vehicle's link layer.
+    Unauthenticated,
 }
 
 /// The outcome of the last command.

@@ -19,6 +19,8 @@ use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m_rt::exception;
 use geometry::Vec3;
 use heapless::Deque;
+use protocol::auth::Nonce;
+use protocol::auth::provision::{KEY_BLOCK_ADDRESS, KEY_BLOCK_LEN};
 use stm32f4xx_hal::pac::{self, USART1, interrupt};
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::serial::{Config as SerialConfig, Rx, RxListen, Serial, Tx, TxListen};
@@ -102,6 +104,14 @@ pub struct RunStats {
     pub motor_errors: u32,
     /// Link messages dropped because more than a step's worth arrived.
     pub uplink_dropped: u32,
+    /// Downlink frames that did not fit the UART's queue whole.
+    pub downlink_dropped: u32,
+    /// Largest cost of the radio's work around one step (decoding, authenticating, sealing; cycles).
+    pub max_link: u32,
+    /// The radio's mode (`flight_core::radio::VehicleRadio::describe`).
+    pub radio: &'static str,
+    /// The radio's state and counters.
+    pub auth: protocol::LinkStatus,
     /// The flight mode after the last step.
     pub mode: control_core::FlightMode,
     /// The link decoder's counters.
@@ -116,11 +126,30 @@ impl RunStats {
         self.sum_cost += cost as u64;
     }
 
+    /// Adds the cost of the radio's work before or after a step.
+    pub fn record_link(&mut self, cost: u32) {
+        self.max_link = self.max_link.max(cost);
+    }
+
     /// Adds the cost of the background work after a step.
     pub fn record_background(&mut self, cost: u32) {
         self.max_background = self.max_background.max(cost);
         self.sum_background += cost as u64;
     }
+}
+
+/// The radio key's flash block as the debug probe left it (`protocol::auth::provision`, docs/security.md).
+pub fn key_block() -> [u8; KEY_BLOCK_LEN] {
+    let mut b = [0u8; KEY_BLOCK_LEN];
+    for (i, x) in b.iter_mut().enumerate() {
+        #[allow(unsafe_code)]
+        // SAFETY: the block lies in the on-chip flash (the first bytes of sector 11), memory-mapped and always
+        // readable; the linker script (memory.x) keeps the firmware out of that sector.
+        unsafe {
+            *x = core::ptr::read_volatile((KEY_BLOCK_ADDRESS as usize + i) as *const u8);
+        }
+    }
+    b
 }
 
 /// Stops here for good (the speed controllers stop their motors when commands stop coming).
@@ -142,10 +171,27 @@ pub struct Board {
     dwt: bool,
     /// SysTick runs free without interrupts (firmware in the loop).
     free_running: bool,
+    /// Handshake nonces drawn.
+    nonces: u32,
+    /// Nonces the hardware RNG could not give.
+    pub rng_errors: u32,
     hw: Hardware,
 }
 
 impl Board {
+    /// A nonce unique within this run: SHA-256 of the count of nonces drawn, the cycle counter and the tick.
+    fn fallback_nonce(&self) -> Nonce {
+        use sha2::Digest;
+        let mut h = sha2::Sha256::new();
+        h.update(self.nonces.to_le_bytes());
+        h.update(self.cycles().to_le_bytes());
+        h.update(TICKS.load(Ordering::Relaxed).to_le_bytes());
+        let d = h.finalize();
+        let mut n = [0u8; 16];
+        n.copy_from_slice(&d[..16]);
+        n
+    }
+
     /// Waits for the next 1 ms tick and returns its number (ticks are never skipped: a late loop catches up).
     ///
     /// The check and the `wfi` are one critical section (see [`Board::rx_byte_or_sleep`]): a tick that fires
@@ -278,6 +324,7 @@ mod variant {
         imu: Mpu6000<ExclusiveDevice<Spi<SPI1>, PA4<Output>, NoDelay>>,
         mag: Option<Hmc5883l<SharedI2c>>,
         esc: BlCtrl<SharedI2c>,
+        rng: pac::RNG,
     }
 
     impl Board {
@@ -286,8 +333,12 @@ mod variant {
             let (Some(dp), Some(mut cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
                 halt("peripherals already taken")
             };
-            let mut rcc =
-                dp.RCC.freeze(Config::hse(8.MHz()).sysclk(168.MHz()).pclk1(42.MHz()).pclk2(84.MHz()));
+            // The 48 MHz clock feeds the hardware RNG (the link's handshake nonces).
+            let mut rcc = dp.RCC.freeze(
+                Config::hse(8.MHz()).sysclk(168.MHz()).pclk1(42.MHz()).pclk2(84.MHz()).require_pll48clk(),
+            );
+            <pac::RNG as stm32f4xx_hal::rcc::Enable>::enable(&mut rcc);
+            dp.RNG.cr().modify(|_, w| w.rngen().set_bit());
             let gpioa = dp.GPIOA.split(&mut rcc);
             let gpiob = dp.GPIOB.split(&mut rcc);
             let mut delay = dp.TIM5.delay_us(&mut rcc);
@@ -342,8 +393,50 @@ mod variant {
                 last_tick: TICKS.load(Ordering::Acquire),
                 dwt: true,
                 free_running: false,
-                hw: Hardware { imu, mag, esc },
+                nonces: 0,
+                rng_errors: 0,
+                hw: Hardware { imu, mag, esc, rng: dp.RNG },
             }
+        }
+
+        /// A fresh nonce for the link's handshake from the hardware RNG (RM0090, 24: 32 bits per 40 RNG
+        /// clocks). After a seed or clock error (counted) the RNG is restarted; should it still fail, the nonce
+        /// is the previous one's SHA-256 with the cycle counter and a count, unique but not unpredictable.
+        pub fn nonce(&mut self) -> Nonce {
+            let mut n = [0u8; 16];
+            let mut ok = true;
+            for chunk in n.chunks_mut(4) {
+                match self.random_word() {
+                    Some(w) => chunk.copy_from_slice(&w.to_le_bytes()),
+                    None => ok = false,
+                }
+            }
+            if !ok {
+                self.rng_errors = self.rng_errors.saturating_add(1);
+                n = self.fallback_nonce();
+            }
+            self.nonces = self.nonces.wrapping_add(1);
+            n
+        }
+
+        fn random_word(&mut self) -> Option<u32> {
+            let rng = &self.hw.rng;
+            for _ in 0..2 {
+                for _ in 0..10_000 {
+                    let sr = rng.sr().read();
+                    if sr.secs().bit() || sr.cecs().bit() {
+                        break;
+                    }
+                    if sr.drdy().bit() {
+                        return Some(rng.dr().read().rndata().bits());
+                    }
+                }
+                // Restart after an error (RM0090, 24.3.2): clear the flags, disable, enable.
+                rng.sr().modify(|_, w| w.seis().clear_bit().ceis().clear_bit());
+                rng.cr().modify(|_, w| w.rngen().clear_bit());
+                rng.cr().modify(|_, w| w.rngen().set_bit());
+            }
+            None
         }
 
         /// One IMU sample stamped `time_us`.
@@ -366,13 +459,18 @@ mod variant {
         pub fn after_step(&mut self, steps: u32, s: &RunStats) {
             if steps.is_multiple_of(2500) {
                 defmt::info!(
-                    "steps {} mode {} step max {} cycles mean {} link ok {} errors {}",
+                    "steps {} mode {} step max {} cycles mean {} link ok {} errors {} radio {} auth ok {} refused {} arm refused {} rng errors {}",
                     s.steps,
                     s.mode,
                     s.max_cost,
                     (s.sum_cost / s.steps.max(1) as u64) as u32,
                     s.link.ok,
-                    s.link.errors()
+                    s.link.errors(),
+                    s.radio,
+                    s.auth.auth.ok,
+                    s.auth.auth.refused(),
+                    s.auth.arm_refused,
+                    self.rng_errors
                 );
             }
         }
@@ -470,8 +568,17 @@ mod variant {
                 last_tick: TICKS.load(Ordering::Acquire),
                 dwt: false,
                 free_running: cfg!(feature = "fil"),
+                nonces: 0,
+                rng_errors: 0,
                 hw: Hardware,
             }
+        }
+
+        /// QEMU does not model the RNG: a nonce made unique (within a run) by a count and the cycle counter,
+        /// not unpredictable. For tests under QEMU only; the board's comes from its hardware RNG.
+        pub fn nonce(&mut self) -> Nonce {
+            self.nonces = self.nonces.wrapping_add(1);
+            self.fallback_nonce()
         }
 
         /// A synthetic IMU at rest: no rotation, gravity along body z.
@@ -502,7 +609,7 @@ mod variant {
             let (used, room) = stack_used();
             cortex_m_semihosting::hprintln!("stack: used={} of {} bytes, free={}", used, room, room - used);
             cortex_m_semihosting::hprintln!(
-                "loop ran: steps={} ticks={} imu_errors={} motor_errors={} imu_dropped={} step_cycles_max={} step_cycles_mean={} background_cycles_max={} background_cycles_total={} mode={:?} link_ok={} link_errors={}",
+                "loop ran: steps={} ticks={} imu_errors={} motor_errors={} imu_dropped={} step_cycles_max={} step_cycles_mean={} background_cycles_max={} background_cycles_total={} mode={:?} link_ok={} link_errors={} radio=\"{}\" auth_ok={} auth_refused={} arm_refused={} link_cycles_max={} rng_errors={}",
                 s.steps,
                 self.last_tick,
                 s.imu_errors,
@@ -514,7 +621,13 @@ mod variant {
                 s.sum_background,
                 s.mode,
                 s.link.ok,
-                s.link.errors()
+                s.link.errors(),
+                s.radio,
+                s.auth.auth.ok,
+                s.auth.auth.refused(),
+                s.auth.arm_refused,
+                s.max_link,
+                self.rng_errors
             );
             cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
             loop {

@@ -5,7 +5,8 @@
 //! - every tick: one IMU sample (MPU-6000 on SPI1);
 //! - every 20th tick: the magnetometer (HMC5883L on I2C1);
 //! - every 2nd tick (500 Hz): the bytes the radio modem delivered (USART1, interrupt-driven queue) are decoded
-//!   into link messages, `flight_core::FlightStack::step` runs (on-board pose solve, estimation, mission,
+//!   and authenticated into link messages (`flight_core::radio`, with the key the debug probe wrote into flash;
+//!   without one the development mode, which refuses to arm unless built with `unauthenticated-link`), `flight_core::FlightStack::step` runs (on-board pose solve, estimation, mission,
 //!   failsafes, control laws, mixer), the rotor speeds go to the BL-Ctrl speed controllers (I2C1), and every
 //!   20th step telemetry goes back down the link (`flight_core::telemetry`) with the step's measured cost.
 //!
@@ -52,20 +53,54 @@ fn main() -> ! {
     #[cfg(feature = "fil")]
     fil::run(&mut board, &mut stack);
     #[cfg(not(feature = "fil"))]
-    run(&mut board, &mut stack, &cfg)
+    run(&mut board, &mut stack, &cfg, radio_security())
+}
+
+/// The radio's security from the key block in flash (docs/security.md, "Provisioning a board").
+#[cfg(not(feature = "fil"))]
+fn radio_security() -> flight_core::radio::Security {
+    use flight_core::radio::Security;
+    use protocol::auth::provision::{KeyBlockError, read_key_block};
+    let allow = cfg!(feature = "unauthenticated-link");
+    match read_key_block(&board::key_block()) {
+        Ok(k) => {
+            defmt::info!("radio key provisioned: authenticated link");
+            Security::Keyed(k)
+        }
+        Err(KeyBlockError::Erased) => {
+            defmt::warn!(
+                "no radio key: development mode, arming {}",
+                if allow { "allowed" } else { "refused" }
+            );
+            Security::Development { allow_arming: allow }
+        }
+        Err(e) => {
+            // A damaged block is a fault, not a choice: never armed on an unauthenticated link.
+            defmt::error!("radio key block unreadable ({}): development mode, arming refused", e);
+            Security::Development { allow_arming: false }
+        }
+    }
 }
 
 /// The flight loop on the board's own sensors and motors.
 #[cfg(not(feature = "fil"))]
-fn run(board: &mut board::Board, stack: &mut FlightStack, cfg: &FlightConfig) -> ! {
+fn run(
+    board: &mut board::Board,
+    stack: &mut FlightStack,
+    cfg: &FlightConfig,
+    security: flight_core::radio::Security,
+) -> ! {
     use control_core::estimator::ImuSample;
     use drivers::blctrl::command_for_speed;
     use flight_core::StepInput;
+    use flight_core::radio::{Incoming, VehicleRadio};
     use geometry::Vec3;
     use heapless::Vec;
     use protocol::Uplink;
+    use protocol::frame::MAX_FRAME;
     let motor_max = cfg.control.vehicle.motor_speed_max_rad_s;
-    let mut decoder = protocol::frame::Decoder::new();
+    let mut radio = VehicleRadio::new(security);
+    let mut reply = [0u8; MAX_FRAME];
     let mut imu: Vec<ImuSample, 4> = Vec::new();
     let mut mag: Option<Vec3> = None;
     let mut downlinks = flight_core::telemetry::DownlinkSchedule::new();
@@ -93,15 +128,26 @@ fn run(board: &mut board::Board, stack: &mut FlightStack, cfg: &FlightConfig) ->
         if !tick.is_multiple_of(STEP_EVERY) {
             continue;
         }
-        // Link: decode what arrived.
+        // Link: decode and authenticate what arrived, outside the step's timing (docs/security.md, "Cost").
         let mut uplink: Vec<Uplink, 8> = Vec::new();
+        let armed = stats.mode != control_core::FlightMode::Disarmed;
+        let t_link = board.cycles();
         while let Some(byte) = board.rx_byte() {
-            if let Some(Ok(msg)) = decoder.push::<Uplink>(byte)
-                && uplink.push(msg).is_err()
-            {
-                stats.uplink_dropped += 1;
+            match radio.push(byte, time_us, armed, || board.nonce(), &mut reply) {
+                Some(Incoming::Message(msg)) => {
+                    if uplink.push(msg).is_err() {
+                        stats.uplink_dropped += 1;
+                    }
+                }
+                Some(Incoming::Reply(n)) => {
+                    if !link::send_frame(board, &reply[..n]) {
+                        stats.downlink_dropped += 1;
+                    }
+                }
+                Some(Incoming::Refused) | None => {}
             }
         }
+        stats.record_link(board.cycles_since(t_link));
         let t0 = board.cycles();
         let out = stack.step(&StepInput {
             time_us,
@@ -119,11 +165,22 @@ fn run(board: &mut board::Board, stack: &mut FlightStack, cfg: &FlightConfig) ->
             stats.motor_errors += 1;
         }
         let every = out.telemetry_every;
+        let t_link = board.cycles();
         downlinks.after_step(&out.control, out.param_reply, out.time_sync, time_us, step_cost, every, |m| {
-            link::send(board, &m)
+            if !link::send(board, &mut radio, &m) {
+                stats.downlink_dropped += 1;
+            }
         });
+        if let Some(status) = radio.status_due(time_us)
+            && !link::send(board, &mut radio, &status)
+        {
+            stats.downlink_dropped += 1;
+        }
+        stats.record_link(board.cycles_since(t_link));
         stats.mode = out.control.status.mode;
-        stats.link = decoder.counters();
+        stats.link = radio.framing();
+        stats.radio = radio.describe();
+        stats.auth = radio.status();
         // Background work: the pose solves of the frames this step queued, fused by the next step. It runs
         // in this loop, so a solve delays the next tick's IMU read (see docs/firmware.md, "Timing").
         if stack.pending_solves() > 0 {

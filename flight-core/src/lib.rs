@@ -28,6 +28,7 @@
 
 pub mod fil;
 pub mod flow;
+pub mod radio;
 pub mod telemetry;
 
 use control_core::estimator::{BodyVelocity, ImuSample, PositionFix};

@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 /// The file's first bytes.
 pub const LOG_MAGIC: &[u8; 6] = b"WLQLOG";
 /// Version of the log layout (header and record kinds).
-pub const LOG_FORMAT_VERSION: u16 = 7;
+pub const LOG_FORMAT_VERSION: u16 = 8;
 /// The record schema of format 5, whose records are those of format 6 without [`LogRecord::Station`] and
 /// without the parameter id `downlink.telemetry_every_steps` (same variant indices and fields otherwise):
 /// such logs are read as they are.
@@ -40,12 +40,17 @@ pub const SCHEMA_HASH_FORMAT_5: &str = "af873cc779970bb0";
 /// (`Uplink::PackedVision`, `Uplink::PackedFlow`, `Downlink::PackedTelemetry`, appended variants): such
 /// logs are read as they are.
 pub const SCHEMA_HASH_FORMAT_6: &str = "2ddad16395ce5b28";
+/// The record schema of format 7, whose records are those of format 8 without the radio's link status and
+/// the arming refusal of an unauthenticated link (`Downlink::LinkStatus`, `Refusal::Unauthenticated`,
+/// appended variants): such logs are read as they are.
+pub const SCHEMA_HASH_FORMAT_7: &str = "6da2960026f0b4d8";
 
 /// The record schema a log of format `version` was written in, for the versions this reader reads.
 pub fn schema_hash_of_format(version: u16) -> Option<String> {
     match version {
         5 => Some(SCHEMA_HASH_FORMAT_5.to_string()),
         6 => Some(SCHEMA_HASH_FORMAT_6.to_string()),
+        7 => Some(SCHEMA_HASH_FORMAT_7.to_string()),
         LOG_FORMAT_VERSION => Some(schema_hash()),
         _ => None,
     }
@@ -270,6 +275,12 @@ pub struct LogHeader {
     /// both it and the flight code see an absolute heading (a magnetometer).
     #[serde(default)]
     pub reference_yaw_absolute: bool,
+    /// How the radio link's frames were secured (docs/security.md): `hmac-sha256-48` (every frame logged from
+    /// the link was authenticated; the refused ones are only counted), `none (development...)` (none was), or
+    /// `in-process (no radio)` for a simulation that runs its station itself. Empty in logs before format 8
+    /// and in imports.
+    #[serde(default)]
+    pub link_security: String,
 }
 
 /// A fingerprint of the record layout: postcard-schema's 64-bit key (FNV-1a over the path and the types'

@@ -391,6 +391,46 @@ mod tests {
     }
 
     #[test]
+    fn golden_bytes_of_the_link_status_and_the_unauthenticated_refusal() {
+        use control_core::{Command, CommandResult, Refusal};
+        let frame = |raw: &[u8]| {
+            let mut raw = raw.to_vec();
+            raw.extend(crc16(&raw).to_le_bytes());
+            let mut enc = [0u8; 64];
+            let n = cobs_encode(&raw, &mut enc).unwrap();
+            let mut v = enc[..n].to_vec();
+            v.push(0);
+            v
+        };
+        let mut buf = [0u8; 64];
+        // CommandAck (Downlink 1), Refused (1), Arm (0), Unauthenticated (Refusal 5).
+        let ack = crate::Downlink::CommandAck(CommandResult::Refused(Command::Arm, Refusal::Unauthenticated));
+        let f = encode(&ack, &mut buf).unwrap().to_vec();
+        assert_eq!(f, frame(&[WIRE_VERSION, 1, 1, 0, 5]));
+        assert_eq!(f, [0x04, 0x01, 0x01, 0x01, 0x04, 0x05, 0x7C, 0xAA, 0x00]);
+        // LinkStatus (Downlink 5): authenticated, 2 arms refused, no framing error, 300 frames accepted (AC 02),
+        // one session, no refusal.
+        let status = crate::LinkStatus {
+            authenticated: true,
+            arm_refused: 2,
+            framing_errors: 0,
+            auth: crate::auth::AuthCounters { ok: 300, sessions: 1, ..Default::default() },
+        };
+        let f = encode(&crate::Downlink::LinkStatus(status), &mut buf).unwrap().to_vec();
+        assert_eq!(f, frame(&[WIRE_VERSION, 5, 1, 2, 0, 0xAC, 0x02, 1, 0, 0, 0, 0, 0, 0, 0, 0]));
+        let mut d = Decoder::new();
+        let got: Vec<_> = f.iter().filter_map(|&b| d.push::<crate::Downlink>(b)).collect();
+        assert_eq!(got, [Ok(crate::Downlink::LinkStatus(status))]);
+        assert_eq!(
+            f,
+            [
+                0x05, 0x01, 0x05, 0x01, 0x02, 0x04, 0xAC, 0x02, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01, 0x01,
+                0x01, 0x03, 0x77, 0xE3, 0x00
+            ]
+        );
+    }
+
+    #[test]
     fn flow_measurements_round_trip_and_fit_the_link() {
         use vision_core::flow::{FlowStats, NoFlowReason};
         let stats = FlowStats {

@@ -129,6 +129,22 @@ pub struct Telemetry {
     pub step_cost: u32,
 }
 
+/// The vehicle's end of the radio link, reported by its link layer once a second
+/// (`flight_core::radio::STATUS_PERIOD_US`): whether its frames are authenticated, and what it refused.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, postcard_schema::Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LinkStatus {
+    /// Whether the frames are authenticated (a key is provisioned); false in the development mode.
+    pub authenticated: bool,
+    /// Arm commands refused because the link is not authenticated (development mode, a firmware built without
+    /// the `unauthenticated-link` feature).
+    pub arm_refused: u32,
+    /// Frames that failed the framing (CRC, COBS, version, length).
+    pub framing_errors: u32,
+    /// Authenticated frames accepted, and refused by reason (all zero in the development mode).
+    pub auth: auth::AuthCounters,
+}
+
 /// Vehicle to ground station. (Messages live on the stack and are encoded at once: no boxing without an
 /// allocator, hence the size difference between variants.)
 #[allow(clippy::large_enum_variant)]
@@ -151,6 +167,8 @@ pub enum Downlink {
     },
     /// Periodic telemetry in fewer bytes ([`packed`]): what the vehicle sends.
     PackedTelemetry(PackedTelemetry),
+    /// The radio link's state and counters, once a second.
+    LinkStatus(LinkStatus),
 }
 
 impl Downlink {

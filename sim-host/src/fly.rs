@@ -97,6 +97,14 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
             },
             reference: String::new(),
             reference_yaw_absolute: false,
+            link_security: match &opts.serve {
+                None => "in-process (no radio)".to_string(),
+                Some(s) => {
+                    flight_core::radio::VehicleRadio::new(crate::virtual_vehicle::radio_security(s.key))
+                        .describe()
+                        .to_string()
+                }
+            },
         };
         sil.record_log(crate::flightlog::LogWriter::create(&log_path, &header)?, opts.frames);
     }

@@ -12,10 +12,8 @@ use serde::{Serialize, de::DeserializeOwned};
 use std::io::Write;
 use std::path::Path;
 
-/// Writes a new random key to `path` (mode 0600), refusing a file that exists.
-pub fn keygen(path: &Path) -> Result<()> {
-    let mut key = [0u8; KEY_LEN];
-    getrandom::fill(&mut key).map_err(|e| anyhow::anyhow!("no random source for the key: {e}"))?;
+/// Creates `path` for a secret, readable by its owner only (mode 0600); an existing file is refused.
+fn create_secret_file(path: &Path, what: &str) -> Result<std::fs::File> {
     let mut o = std::fs::OpenOptions::new();
     o.write(true).create_new(true);
     #[cfg(unix)]
@@ -23,13 +21,32 @@ pub fn keygen(path: &Path) -> Result<()> {
         use std::os::unix::fs::OpenOptionsExt;
         o.mode(0o600);
     }
-    let mut f = o.open(path).with_context(|| {
-        format!("{}: cannot create the key file (an existing key is never overwritten)", path.display())
-    })?;
+    o.open(path).with_context(|| {
+        format!("{}: cannot create the {what} (an existing file is never overwritten)", path.display())
+    })
+}
+
+/// Writes a new random key to `path` (mode 0600), refusing a file that exists.
+pub fn keygen(path: &Path) -> Result<()> {
+    let mut key = [0u8; KEY_LEN];
+    getrandom::fill(&mut key).map_err(|e| anyhow::anyhow!("no random source for the key: {e}"))?;
+    let mut f = create_secret_file(path, "key file")?;
     let hex: String = key.iter().map(|b| format!("{b:02x}")).collect();
     f.write_all(format!("{hex}\n").as_bytes())
         .with_context(|| format!("{}: writing the key", path.display()))?;
     f.sync_all().with_context(|| format!("{}: writing the key", path.display()))?;
+    Ok(())
+}
+
+/// Writes the flash block that provisions a board with the key in `key_file`
+/// (`protocol::auth::provision`, 48 bytes, mode 0600; refused if `out` exists), for the debug probe to
+/// write at `protocol::auth::provision::KEY_BLOCK_ADDRESS`.
+pub fn key_image(key_file: &Path, out: &Path) -> Result<()> {
+    let key = read_key(key_file)?;
+    let block = protocol::auth::provision::key_block(&key);
+    let mut f = create_secret_file(out, "key image")?;
+    f.write_all(&block).with_context(|| format!("{}: writing the key image", out.display()))?;
+    f.sync_all().with_context(|| format!("{}: writing the key image", out.display()))?;
     Ok(())
 }
 
@@ -228,6 +245,28 @@ mod tests {
         o.open(&p).unwrap().write_all(b"secretsecret\n").unwrap();
         let e = read_key(&p).unwrap_err().to_string();
         assert!(e.contains("64 hexadecimal digits") && !e.contains("secret"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_key_image_holds_the_key_file_s_key_for_the_probe() {
+        let dir = std::env::temp_dir().join(format!("key-image-{}", std::process::id()));
+        std::fs::remove_dir_all(&dir).ok();
+        std::fs::create_dir_all(&dir).unwrap();
+        let (key_file, image) = (dir.join("radio.key"), dir.join("key.bin"));
+        keygen(&key_file).unwrap();
+        key_image(&key_file, &image).unwrap();
+        let bytes = std::fs::read(&image).unwrap();
+        assert_eq!(bytes.len(), protocol::auth::provision::KEY_BLOCK_LEN);
+        assert_eq!(protocol::auth::provision::read_key_block(&bytes), Ok(read_key(&key_file).unwrap()));
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            assert_eq!(std::fs::metadata(&image).unwrap().permissions().mode() & 0o777, 0o600);
+        }
+        // Never overwritten (the image is a copy of the secret; another key's image is not silently lost).
+        let e = key_image(&key_file, &image).unwrap_err().to_string();
+        assert!(e.contains("key.bin") && e.contains("never overwritten"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 

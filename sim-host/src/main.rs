@@ -37,6 +37,16 @@ struct KeygenArgs {
     out: std::path::PathBuf,
 }
 
+#[derive(clap::Args, Debug)]
+struct KeyImageArgs {
+    /// The key file (`sim-host keygen --out FILE`).
+    #[arg(long, value_name = "FILE")]
+    key: std::path::PathBuf,
+    /// The 48-byte flash block to write (refused if it exists; mode 0600).
+    #[arg(long, value_name = "FILE")]
+    out: std::path::PathBuf,
+}
+
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Render the frame a camera sees from a vehicle pose.
@@ -63,6 +73,10 @@ enum Command {
     /// Make a new radio key (32 random bytes, mode 0600) for `station --key` and the vehicle
     /// (docs/security.md); an existing file is never overwritten.
     Keygen(KeygenArgs),
+    /// Turn a radio key file into the flash block a debug probe writes into the board (never sent over the
+    /// radio): `probe-rs download --chip STM32F405RGTx --binary-format bin --base-address 0x080E0000 FILE`
+    /// (docs/security.md, "Provisioning a board").
+    KeyImage(KeyImageArgs),
     /// Print the flight parameters' reference as Markdown (docs/parameters.md): each parameter's dotted name,
     /// type, default, range, unit and description, from their one declaration.
     Params,
@@ -92,6 +106,15 @@ fn main() -> ExitCode {
         Command::Keygen(a) => sim_host::link_key::keygen(&a.out).map(|()| {
             eprintln!(
                 "wrote the radio key {} (mode 0600): give it to the station and the vehicle",
+                a.out.display()
+            );
+            ExitCode::SUCCESS
+        }),
+        Command::KeyImage(a) => sim_host::link_key::key_image(&a.key, &a.out).map(|()| {
+            eprintln!(
+                "wrote the key image {} (48 bytes, mode 0600): write it with `probe-rs download --chip \
+                 STM32F405RGTx --binary-format bin --base-address 0x080E0000 {}`, then delete it",
+                a.out.display(),
                 a.out.display()
             );
             ExitCode::SUCCESS

@@ -125,6 +125,9 @@ pub struct StationStats {
     pub auth: protocol::auth::AuthCounters,
     /// Hellos sent before the vehicle answered (keyed link).
     pub hellos_sent: u64,
+    /// The vehicle's own report of its radio, the last received (`Downlink::LinkStatus`, once a second):
+    /// whether it authenticates, arm commands it refused, and its uplink's counters by reason.
+    pub vehicle_link: Option<protocol::LinkStatus>,
     /// Median and 95th percentile of the time from a forward frame's arrival to its measurement leaving on
     /// the radio (ms).
     pub frame_to_uplink_ms: [f64; 2],
@@ -273,6 +276,7 @@ pub fn run_station(
         flight_computer: format!("the vehicle at the other end of the radio ({})", opts.link),
         reference: String::new(),
         reference_yaw_absolute: false,
+        link_security: LinkSecurity::new(protocol::auth::Role::Station, opts.key).describe().to_string(),
     };
     let mut rec = Recorder {
         log: LogWriter::create(&opts.log, &header)?,
@@ -468,6 +472,7 @@ fn station_loop(
                     }
                 }
                 Downlink::CommandAck(r) => stats.command_acks.push(format!("{t:.2} s: {r:?}")),
+                Downlink::LinkStatus(l) => stats.vehicle_link = Some(l),
                 Downlink::Param(r) => {
                     if opts.compact && r.id == control_core::params::ParamId::TelemetryEvery {
                         stats.compact_announced = Some(r.outcome == control_core::ParamOutcome::Ok);

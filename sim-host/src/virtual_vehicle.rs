@@ -5,12 +5,14 @@
 //! The cameras stamp each frame with the machine's clock at its capture (`X-Timestamp-Us`, us since the Unix
 //! epoch), as a webcam's driver stamps its buffers with the station's clock; the station maps those times to
 //! the vehicle's clock with its clock sync, as it must with a real vehicle.
-use crate::link_key::{LinkReceiver, LinkSecurity, Received, random_nonce};
+use crate::link_key::random_nonce;
 use crate::sil::{RunStats, Sil};
 use anyhow::{Context, Result, bail};
+use flight_core::radio::{Incoming, NotSent, Security, VehicleRadio};
 use ground_station::source::now_unix_us;
 use ground_station::stream::{Frame, PartEncoding, StreamWriter};
-use protocol::{Downlink, Uplink};
+use protocol::Downlink;
+use protocol::frame::MAX_FRAME;
 use std::io::{ErrorKind, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -41,13 +43,16 @@ pub struct ServeStats {
     pub uplink_messages: u64,
     /// Uplink frames refused: damaged, of another version, or (keyed) failing authentication.
     pub uplink_refused: u64,
-    /// How the radio is secured: `hmac-sha256-48`, or `none (development)`.
+    /// How the radio is secured: `hmac-sha256-48`, or `none (development, arming allowed)` (the virtual
+    /// vehicle is a firmware built with `unauthenticated-link`, docs/security.md).
     pub link_security: &'static str,
     /// The authentication's counters: sessions, frames accepted and refused by reason (docs/security.md).
     pub auth: protocol::auth::AuthCounters,
     /// Downlink messages not sent because no session was up yet (keyed link).
     pub downlink_before_session: u64,
-    /// Downlink messages sent.
+    /// Downlink messages that did not fit a frame (or a spent session counter).
+    pub downlink_unframable: u64,
+    /// Downlink messages sent (the radio's own `LinkStatus` once a second among them).
     pub downlink_messages: u64,
     /// Frames each camera sent to its client (forward, down).
     pub frames_sent: [u64; 2],
@@ -191,9 +196,11 @@ pub fn serve(
     };
     link.set_nonblocking(true)?;
     link.set_nodelay(true)?;
-    let mut security = LinkSecurity::new(protocol::auth::Role::Vehicle, opts.key);
-    stats.link_security = security.describe();
-    let mut receiver = LinkReceiver::default();
+    // The firmware's radio code (flight_core::radio).
+    let mut radio = VehicleRadio::new(radio_security(opts.key));
+    stats.link_security = radio.describe();
+    let mut reply = [0u8; MAX_FRAME];
+    let mut frame_buf = [0u8; MAX_FRAME];
     // The nonce of the next session, drawn before it is needed (the handshake runs byte by byte).
     let mut next_nonce = random_nonce()?;
     let mut armed = false;
@@ -234,21 +241,31 @@ pub fn serve(
                     Ok(n) => {
                         let now_us = (sil.time_s() * 1e6) as u64;
                         for &b in &buf[..n] {
-                            let nonce = next_nonce;
-                            match receiver.push::<Uplink>(&mut security, b, now_us, armed, || nonce) {
-                                Some(Received::Message(m)) => {
+                            let (nonce, mut nonce_used) = (next_nonce, false);
+                            let got = radio.push(
+                                b,
+                                now_us,
+                                armed,
+                                || {
+                                    nonce_used = true;
+                                    nonce
+                                },
+                                &mut reply,
+                            );
+                            if nonce_used {
+                                next_nonce = random_nonce()?;
+                            }
+                            match got {
+                                Some(Incoming::Message(m)) => {
                                     stats.uplink_messages += 1;
                                     sil.uplink(m);
                                 }
-                                Some(Received::SessionStarted(welcome)) => {
-                                    next_nonce = random_nonce()?;
-                                    if let Some(w) = welcome
-                                        && write_all_nonblocking(&mut link, &w).is_err()
-                                    {
+                                Some(Incoming::Reply(len)) => {
+                                    if write_all_nonblocking(&mut link, &reply[..len]).is_err() {
                                         station_gone = true;
                                     }
                                 }
-                                Some(Received::Refused) => stats.uplink_refused += 1,
+                                Some(Incoming::Refused) => stats.uplink_refused += 1,
                                 None => {}
                             }
                         }
@@ -280,17 +297,16 @@ pub fn serve(
                 }
             }
             if !station_gone {
-                for m in downlink {
-                    if !security.ready() {
-                        stats.downlink_before_session += 1;
-                        continue;
-                    }
-                    if let Ok(bytes) = security.frame(&m) {
+                let status = radio.status_due((sil.time_s() * 1e6) as u64);
+                for m in downlink.into_iter().chain(status) {
+                    match radio.frame(&m, &mut frame_buf) {
                         // A radio drops what it cannot send; the socket is local and never full in practice.
-                        match write_all_nonblocking(&mut link, &bytes) {
+                        Ok(bytes) => match write_all_nonblocking(&mut link, bytes) {
                             Ok(()) => stats.downlink_messages += 1,
                             Err(_) => station_gone = true,
-                        }
+                        },
+                        Err(NotSent::NoSession) => stats.downlink_before_session += 1,
+                        Err(NotSent::Unframable) => stats.downlink_unframable += 1,
                     }
                 }
             }
@@ -311,11 +327,20 @@ pub fn serve(
     stats.frames_sent =
         [forward.sent.load(Ordering::Relaxed), down.as_ref().map_or(0, |d| d.sent.load(Ordering::Relaxed))];
     stats.frames_dropped = [forward.dropped, down.as_ref().map_or(0, |d| d.dropped)];
-    stats.auth = security.counters();
+    stats.auth = radio.auth_counters();
     if link.flush().is_err() {
         // The station hung up; what it did not take is counted in neither direction's messages.
     }
     Ok((sil.finish(), stats))
+}
+
+/// The virtual vehicle's radio: keyed with `--key`; with `--no-key`, the development mode of a firmware built
+/// with the `unauthenticated-link` feature (it arms: the simulator is a development tool).
+pub fn radio_security(key: Option<protocol::auth::Key>) -> Security {
+    match key {
+        Some(k) => Security::Keyed(k),
+        None => Security::Development { allow_arming: true },
+    }
 }
 
 /// Writes all of `bytes` to a non-blocking socket, waiting briefly while it is full.

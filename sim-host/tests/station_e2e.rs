@@ -130,6 +130,10 @@ fn the_virtual_vehicle_and_the_station_fly_the_short_mission_over_tcp() {
     assert_eq!((va["sessions"].as_u64(), sa["sessions"].as_u64()), (Some(1), Some(1)), "{va} {sa}");
     assert!(va["ok"].as_u64().unwrap() > 1000 && sa["ok"].as_u64().unwrap() > 100, "{va} {sa}");
     assert_eq!((va["bad_tag"].as_u64(), sa["bad_tag"].as_u64()), (Some(0), Some(0)));
+    // The vehicle's own report of its radio, sent down once a second, authenticated, reached the station.
+    let vl = &s["vehicle_link"];
+    assert_eq!(vl["authenticated"], true, "{vl}");
+    assert!(vl["auth"]["ok"].as_u64().unwrap() > 1000 && vl["auth"]["bad_tag"] == 0, "{vl}");
     // The vehicle flew the mission the station commanded and ended on the floor, disarmed.
     assert_eq!(v["landed"], true, "{v}");
     assert_eq!(v["crashed"], false);

@@ -392,6 +392,7 @@ fn a_flight_on_a_full_disk_flies_on_and_keeps_its_log_so_far() {
         flight_computer: "sil".into(),
         reference: String::new(),
         reference_yaw_absolute: false,
+        link_security: String::new(),
     };
     let file = sim_host::files::AtomicFile::create_with_space(&path, 200_000).unwrap();
     sil.record_log(sim_host::flightlog::LogWriter::create_on(file, &header).unwrap(), FramePolicy::Drop);

@@ -27,6 +27,8 @@ use sha2::Sha256;
 
 use crate::frame::{EncodeError, MAX_FRAME, WIRE_VERSION, cobs_encode};
 
+pub mod provision;
+
 /// First byte of an authenticated data frame (the hello is 3, the welcome 4; an unauthenticated frame's is its
 /// wire version, 1).
 pub const AUTH_WIRE_VERSION: u8 = 2;
@@ -185,17 +187,37 @@ impl From<EncodeError> for SealError {
     }
 }
 
-#[derive(Clone, Copy)]
+/// HMAC-SHA256 under one key, its padded key blocks already hashed (RFC 2104): each tag then costs the
+/// message's blocks and two finishing blocks, not two more for the key (a third of a telemetry frame's cost on
+/// the Cortex-M4, docs/security.md).
+type KeyedMac = Hmac<Sha256>;
+
+fn keyed(key: &Key) -> KeyedMac {
+    // A key shorter than SHA-256's 64-byte block is zero-padded to it (RFC 2104, section 2): the padded block
+    // is the same key, taken by the infallible constructor.
+    let mut block = hmac::digest::Key::<KeyedMac>::default();
+    block[..KEY_LEN].copy_from_slice(key);
+    <KeyedMac as KeyInit>::new(&block)
+}
+
+#[derive(Clone)]
 struct Session {
-    key: Key,
+    mac: KeyedMac,
     sent: u32,
     received: u32,
+}
+
+impl Session {
+    fn new(long_term: &Key, station_nonce: &Nonce, vehicle_nonce: &Nonce) -> Self {
+        Self { mac: keyed(&session_key(long_term, station_nonce, vehicle_nonce)), sent: 0, received: 0 }
+    }
 }
 
 /// One side of a keyed link: seals what it sends, opens what it receives.
 pub struct SecureLink {
     role: Role,
     key: Key,
+    key_mac: KeyedMac,
     session: Option<Session>,
     /// Station: the nonce of the hello it sent. Vehicle: the nonces of the last hello it took, for the welcome.
     station_nonce: Option<Nonce>,
@@ -204,12 +226,8 @@ pub struct SecureLink {
     counters: AuthCounters,
 }
 
-fn mac(key: &Key, parts: &[&[u8]]) -> [u8; 32] {
-    // HMAC takes keys of any length: `new_from_slice` cannot fail for 32 bytes.
-    let mut m = match <Hmac<Sha256> as KeyInit>::new_from_slice(key) {
-        Ok(m) => m,
-        Err(_) => return [0; 32],
-    };
+fn mac(keyed: &KeyedMac, parts: &[&[u8]]) -> [u8; 32] {
+    let mut m = keyed.clone();
     for p in parts {
         m.update(p);
     }
@@ -218,7 +236,7 @@ fn mac(key: &Key, parts: &[&[u8]]) -> [u8; 32] {
 
 /// The session key both sides derive from the long-term key and the two nonces.
 pub fn session_key(key: &Key, station_nonce: &Nonce, vehicle_nonce: &Nonce) -> Key {
-    mac(key, &[b"WLQ session", station_nonce, vehicle_nonce])
+    mac(&keyed(key), &[b"WLQ session", station_nonce, vehicle_nonce])
 }
 
 fn varint_u32(mut v: u32, out: &mut [u8; 5]) -> usize {
@@ -255,13 +273,13 @@ fn read_varint_u32(b: &[u8]) -> Option<(u32, usize)> {
     None
 }
 
-fn tag(key: &Key, direction: u8, kind: u8, counter: &[u8], payload: &[u8]) -> [u8; 32] {
+fn tag(key: &KeyedMac, direction: u8, kind: u8, counter: &[u8], payload: &[u8]) -> [u8; 32] {
     mac(key, &[DOMAIN, &[direction, kind], counter, payload])
 }
 
 /// Seals one body (`kind counter payload tag`) and frames it (COBS and the delimiter) into `out`.
 fn seal_body<'a>(
-    key: &Key,
+    key: &KeyedMac,
     direction: u8,
     kind: u8,
     counter: u32,
@@ -290,10 +308,11 @@ fn seal_body<'a>(
 
 impl SecureLink {
     /// One side of a link keyed with `key`, before any session.
-    pub const fn new(role: Role, key: Key) -> Self {
+    pub fn new(role: Role, key: Key) -> Self {
         Self {
             role,
             key,
+            key_mac: keyed(&key),
             session: None,
             station_nonce: None,
             vehicle_nonce: None,
@@ -328,7 +347,7 @@ impl SecureLink {
     pub fn hello<'a>(&mut self, nonce: Nonce, out: &'a mut [u8]) -> Result<&'a [u8], SealError> {
         self.session = None;
         self.station_nonce = Some(nonce);
-        seal_body(&self.key, self.role.sends(), KIND_HELLO, 0, &nonce, out)
+        seal_body(&self.key_mac, self.role.sends(), KIND_HELLO, 0, &nonce, out)
     }
 
     /// Vehicle: the welcome that answers the hello just taken ([`Opened::SessionStarted`]).
@@ -339,7 +358,7 @@ impl SecureLink {
         let mut payload = [0u8; 2 * NONCE_LEN];
         payload[..NONCE_LEN].copy_from_slice(&s);
         payload[NONCE_LEN..].copy_from_slice(&v);
-        seal_body(&self.key, self.role.sends(), KIND_WELCOME, 0, &payload, out)
+        seal_body(&self.key_mac, self.role.sends(), KIND_WELCOME, 0, &payload, out)
     }
 
     /// Seals a message of the session as a complete frame into `out`.
@@ -350,8 +369,7 @@ impl SecureLink {
         let counter = s.sent.checked_add(1).ok_or(SealError::CounterSpent)?;
         let mut payload = [0u8; MAX_FRAME];
         let p = postcard::to_slice(msg, &mut payload).map_err(|_| SealError::BufferFull)?;
-        let key = s.key;
-        let frame = seal_body(&key, self.role.sends(), KIND_DATA, counter, p, out)?;
+        let frame = seal_body(&s.mac, self.role.sends(), KIND_DATA, counter, p, out)?;
         s.sent = counter;
         Ok(frame)
     }
@@ -399,8 +417,8 @@ impl SecureLink {
         let payload = &body[1 + cn..body.len() - TAG_LEN];
         let got = &body[body.len() - TAG_LEN..];
         let direction = self.role.receives();
-        let check = |key: &Key| -> Result<(), AuthError> {
-            let mut m = <Hmac<Sha256> as KeyInit>::new_from_slice(key).map_err(|_| AuthError::BadTag)?;
+        let check = |key: &KeyedMac| -> Result<(), AuthError> {
+            let mut m = key.clone();
             m.update(DOMAIN);
             m.update(&[direction, kind]);
             m.update(&body[1..1 + cn]);
@@ -409,10 +427,10 @@ impl SecureLink {
         };
         match kind {
             KIND_DATA => {
-                let Some(s) = self.session else {
+                let Some(s) = self.session.as_ref() else {
                     return Err(AuthError::NoSession);
                 };
-                check(&s.key)?;
+                check(&s.mac)?;
                 if counter <= s.received {
                     return Err(AuthError::Replayed);
                 }
@@ -427,7 +445,7 @@ impl SecureLink {
                 Ok(Opened::Message(msg))
             }
             KIND_HELLO if self.role == Role::Vehicle => {
-                check(&self.key)?;
+                check(&self.key_mac)?;
                 let station: Nonce = payload.try_into().map_err(|_| AuthError::Malformed)?;
                 let quiet = now_us.saturating_sub(self.last_authentic_us) >= HELLO_QUIET_US;
                 if armed && self.session.is_some() && !quiet {
@@ -436,13 +454,12 @@ impl SecureLink {
                 let vehicle = vehicle_nonce();
                 self.station_nonce = Some(station);
                 self.vehicle_nonce = Some(vehicle);
-                self.session =
-                    Some(Session { key: session_key(&self.key, &station, &vehicle), sent: 0, received: 0 });
+                self.session = Some(Session::new(&self.key, &station, &vehicle));
                 self.last_authentic_us = now_us;
                 Ok(Opened::SessionStarted)
             }
             KIND_WELCOME if self.role == Role::Station => {
-                check(&self.key)?;
+                check(&self.key_mac)?;
                 if payload.len() != 2 * NONCE_LEN {
                     return Err(AuthError::Malformed);
                 }
@@ -455,8 +472,7 @@ impl SecureLink {
                     return Err(AuthError::NoSession);
                 }
                 let vehicle: Nonce = v.try_into().map_err(|_| AuthError::Malformed)?;
-                self.session =
-                    Some(Session { key: session_key(&self.key, &mine, &vehicle), sent: 0, received: 0 });
+                self.session = Some(Session::new(&self.key, &mine, &vehicle));
                 self.last_authentic_us = now_us;
                 Ok(Opened::SessionStarted)
             }

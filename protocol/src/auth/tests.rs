@@ -210,9 +210,15 @@ fn golden_bytes_of_a_hello() {
     let b = body(st.hello([0x11; NONCE_LEN], &mut out).unwrap());
     assert_eq!(b[..2], [3, 0]);
     assert_eq!(b[2..2 + NONCE_LEN], [0x11; NONCE_LEN]);
-    let full = mac(&[0; KEY_LEN], &[b"WLQA", &[b'U', 3], &[0], &[0x11; NONCE_LEN]]);
+    let full = mac(&keyed(&[0; KEY_LEN]), &[b"WLQA", &[b'U', 3], &[0], &[0x11; NONCE_LEN]]);
     assert_eq!(b[2 + NONCE_LEN..], full[..TAG_LEN]);
     assert_eq!(hex(&b[2 + NONCE_LEN..]), "21 0e 6e 08 6c 00");
+    // The prepared (padded) key is the key: the same tag as HMAC keyed from the 32 bytes (a zero key cannot
+    // tell a padding bug).
+    let k: [u8; KEY_LEN] = core::array::from_fn(|i| i as u8 * 7 + 1);
+    let mut direct = <Hmac<Sha256> as KeyInit>::new_from_slice(&k).unwrap();
+    direct.update(b"WLQA");
+    assert_eq!(mac(&keyed(&k), &[b"WL", b"QA"]), <[u8; 32]>::from(direct.finalize().into_bytes()));
     // HMAC-SHA256 itself: RFC 4231 test case 2 ("Jefe", "what do ya want for nothing?").
     let mut m = <Hmac<Sha256> as KeyInit>::new_from_slice(b"Jefe").unwrap();
     m.update(b"what do ya want for nothing?");

@@ -357,6 +357,7 @@ pub fn import_header(
         flight_computer: "none (imported dataset)".into(),
         reference,
         reference_yaw_absolute: yaw_absolute,
+        link_security: String::new(),
     })
 }
 
