@@ -22,7 +22,7 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
     let mut downlinks = flight_core::telemetry::DownlinkSchedule::new();
     let mut stats = board::RunStats::default();
     let (mut background_cycles, mut background_solves) = (0u32, 0u8);
-    link::send(board, &FcToFil::Hello { wire_version: WIRE_VERSION });
+    link::send_plain(board, &FcToFil::Hello { wire_version: WIRE_VERSION });
     loop {
         let Some(byte) = board.rx_byte_or_sleep() else { continue };
         match decoder.push::<FilToFc>(byte) {
@@ -53,9 +53,9 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
                     s.time_us,
                     cost,
                     every,
-                    |m| link::send(board, &FcToFil::Link(m)),
+                    |m| link::send_plain(board, &FcToFil::Link(m)),
                 );
-                link::send(
+                link::send_plain(
                     board,
                     &FcToFil::Step {
                         report: out.report(),
@@ -72,7 +72,7 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
             }
             Some(Ok(FilToFc::AuthCost)) => {
                 let cost = flight_core::fil::measure_auth_cost(|| board.cycles());
-                link::send(board, &FcToFil::AuthCost(cost));
+                link::send_plain(board, &FcToFil::AuthCost(cost));
             }
             Some(Ok(FilToFc::Stop)) => {
                 stats.link = decoder.counters();

@@ -148,7 +148,7 @@ impl VehicleRadio {
                 SealError::NoSession => NotSent::NoSession,
                 SealError::CounterSpent | SealError::BufferFull => NotSent::Unframable,
             }),
-            None => encode(msg, out).map(|f| &*f).map_err(|_| NotSent::Unframable),
+            None => encode(msg, out).map_err(|_| NotSent::Unframable),
         };
         if let Err(e) = r {
             let c = &mut self.not_sent[e as usize];

@@ -96,7 +96,7 @@ pub fn random_nonce() -> Result<Nonce> {
 /// `--no-key`) not.
 pub enum LinkSecurity {
     /// `protocol::auth` frames; everything else refused.
-    Keyed(SecureLink),
+    Keyed(Box<SecureLink>),
     /// Unauthenticated frames (wire version 1): anyone on the radio may command the vehicle.
     Open,
 }
@@ -105,7 +105,7 @@ impl LinkSecurity {
     /// The link for `role` with `key`, or open without one.
     pub fn new(role: Role, key: Option<Key>) -> Self {
         match key {
-            Some(k) => LinkSecurity::Keyed(SecureLink::new(role, k)),
+            Some(k) => LinkSecurity::Keyed(Box::new(SecureLink::new(role, k))),
             None => LinkSecurity::Open,
         }
     }

@@ -260,11 +260,12 @@ pub fn serve(
                                     stats.uplink_messages += 1;
                                     sil.uplink(m);
                                 }
-                                Some(Incoming::Reply(len)) => {
-                                    if write_all_nonblocking(&mut link, &reply[..len]).is_err() {
-                                        station_gone = true;
-                                    }
+                                Some(Incoming::Reply(len))
+                                    if write_all_nonblocking(&mut link, &reply[..len]).is_err() =>
+                                {
+                                    station_gone = true;
                                 }
+                                Some(Incoming::Reply(_)) => {}
                                 Some(Incoming::Refused) => stats.uplink_refused += 1,
                                 None => {}
                             }
