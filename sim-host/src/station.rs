@@ -123,8 +123,11 @@ pub struct StationStats {
     pub link_security: String,
     /// The downlink's authentication: sessions, frames accepted and refused by reason (docs/security.md).
     pub auth: protocol::auth::AuthCounters,
-    /// Hellos sent before the vehicle answered (keyed link).
+    /// Hellos sent (keyed link): until the vehicle answered, and again after a session went quiet.
     pub hellos_sent: u64,
+    /// New handshakes started because no authentic downlink came for [`REHELLO_AFTER_S`] (a vehicle that
+    /// rebooted, or whose session a replayed hello replaced while it was disarmed).
+    pub rehellos: u64,
     /// The vehicle's own report of its radio, the last received (`Downlink::LinkStatus`, once a second):
     /// whether it authenticates, arm commands it refused, and its uplink's counters by reason.
     pub vehicle_link: Option<protocol::LinkStatus>,
@@ -232,6 +235,12 @@ pub fn measure_forward(
 ) -> VisionMeasurement {
     VisionMeasurement { capture_time_us: vehicle_us, frame_seq, observation: vision.detect(img).ok() }
 }
+
+/// A keyed session with no authentic downlink for this long is taken as dead and a new hello sent (s): the
+/// vehicle sends telemetry at 10-25 Hz and its link status every second, so 3 s of nothing is a session the
+/// vehicle no longer shares (or a radio that is down, which the new hello does not harm: the vehicle takes it
+/// once its own side has been quiet for `protocol::auth::HELLO_QUIET_US`).
+pub const REHELLO_AFTER_S: f64 = 3.0;
 
 /// A camera silent for this long is stalled (counted once per stall; 15 frames at 30 Hz).
 pub const CAMERA_STALL_S: f64 = 0.5;
@@ -393,8 +402,10 @@ fn station_loop(
         sent_bytes.set(sent_bytes.get() + bytes.len() as u64);
         rec.event(StationEvent::Sent { station_time_us: now_unix_us(), message: *m })
     };
-    // A keyed link starts with the handshake: a hello, again each second until the vehicle answers.
+    // A keyed link starts with the handshake: a hello, again each second until the vehicle answers, and anew
+    // when the session goes quiet.
     let mut next_hello = 0.0;
+    let (mut had_session, mut last_down) = (false, 0.0);
     let hello = |w: &mut Box<dyn std::io::Write + Send>, stats: &mut StationStats| -> Result<()> {
         let nonce = crate::link_key::random_nonce()?;
         let mut buf = [0u8; protocol::frame::MAX_FRAME];
@@ -425,11 +436,24 @@ fn station_loop(
             break format!("the duration ({} s) ran out", opts.duration_s);
         }
         let session = security.lock().map(|sec| sec.ready()).unwrap_or(false);
+        if session && !had_session {
+            last_down = t;
+        }
+        had_session |= session;
         if !session && t >= next_hello {
             hello(&mut writer, &mut stats)?;
-            next_hello += 1.0;
+            next_hello = t + 1.0;
         }
-        if !session && t > opts.answer_timeout_s {
+        if session && opts.key.is_some() && t - last_down > REHELLO_AFTER_S {
+            // Nothing authentic for a while: the vehicle's session is not ours any more (it rebooted, or a
+            // replayed hello replaced it while it was disarmed). A new handshake; nothing goes up until then.
+            hello(&mut writer, &mut stats)?;
+            stats.rehellos += 1;
+            next_hello = t + 1.0;
+            last_down = t;
+            continue;
+        }
+        if !had_session && t > opts.answer_timeout_s {
             bail!(
                 "the vehicle did not answer the link's hello within {} s ({} sent): is its key this --key? (a \
                  vehicle without a key needs --no-key)",
@@ -445,6 +469,7 @@ fn station_loop(
         }
         // What came down.
         while let Ok((m, at)) = down_rx.try_recv() {
+            last_down = t;
             rec.event(StationEvent::Received { station_time_us: at, message: m })?;
             if let Some(tm) = m.telemetry() {
                 stats.telemetry += 1;

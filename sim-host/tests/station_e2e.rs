@@ -270,6 +270,117 @@ fn recording_relay(vehicle_link: &str) -> (String, std::sync::Arc<std::sync::Mut
     (addr, capture)
 }
 
+/// A relay on a free port between the station and the vehicle's radio `vehicle_link` that, `after` the
+/// station's first bytes, sends the station's first frame (its hello) to the vehicle once more, between two of
+/// the station's frames, as an attacker on the radio replaying it would.
+fn hello_replaying_relay(vehicle_link: &str, after: Duration) -> String {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = format!("tcp:{}", listener.local_addr().unwrap());
+    let target = vehicle_link.trim_start_matches("tcp:").to_string();
+    std::thread::spawn(move || {
+        let Ok((station, _)) = listener.accept() else { return };
+        let Ok(vehicle) = std::net::TcpStream::connect(&target) else { return };
+        let (mut s_in, mut v_out) = (station.try_clone().unwrap(), vehicle.try_clone().unwrap());
+        let up = std::thread::spawn(move || {
+            let (mut seen, mut start, mut replayed) = (Vec::new(), None, false);
+            let mut buf = [0u8; 4096];
+            while let Ok(n) = std::io::Read::read(&mut s_in, &mut buf) {
+                if n == 0 || std::io::Write::write_all(&mut v_out, &buf[..n]).is_err() {
+                    break;
+                }
+                let start = *start.get_or_insert_with(std::time::Instant::now);
+                if seen.len() < 64 {
+                    seen.extend_from_slice(&buf[..n]);
+                }
+                let hello = seen.iter().position(|&b| b == 0).map(|end| &seen[..=end]);
+                if let Some(hello) = hello
+                    && !replayed
+                    && start.elapsed() >= after
+                    && buf[n - 1] == 0
+                {
+                    replayed = std::io::Write::write_all(&mut v_out, hello).is_ok();
+                }
+            }
+            v_out.shutdown(std::net::Shutdown::Write).ok();
+        });
+        let (mut v_in, mut s_out) = (vehicle, station);
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = std::io::Read::read(&mut v_in, &mut buf) {
+            if n == 0 || std::io::Write::write_all(&mut s_out, &buf[..n]).is_err() {
+                break;
+            }
+        }
+        s_out.shutdown(std::net::Shutdown::Write).ok();
+        up.join().ok();
+    });
+    addr
+}
+
+#[test]
+fn a_session_a_replayed_hello_replaced_is_started_anew_by_the_station() {
+    let _serial = one_at_a_time();
+    let dir = std::env::temp_dir().join(format!("station-rehello-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let key = keygen(&dir);
+    let script = dir.join("arm-disarm.txt");
+    std::fs::write(
+        &script,
+        "6 arm
+7 disarm
+",
+    )
+    .unwrap();
+    let (mut vehicle, ports) = start_vehicle(
+        &dir.join("vehicle"),
+        &["--no-plots", "--no-log", "--duration", "12", "--seed", "4", "--key", &key],
+    );
+    // 1.5 s in, the vehicle (disarmed) takes the replayed hello: a new session the station does not share.
+    let relay = hello_replaying_relay(&ports["link"], Duration::from_millis(1500));
+    let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args([
+            "station",
+            "--key",
+            &key,
+            "--link",
+            &relay,
+            "--forward",
+            &ports["forward"],
+            "--down",
+            &ports["down"],
+        ])
+        .arg("--script")
+        .arg(&script)
+        .args(["--duration", "10"])
+        .arg("--out")
+        .arg(dir.join("station"))
+        .output()
+        .unwrap();
+    let vs = wait(&mut vehicle, Duration::from_secs(30), "the virtual vehicle");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(vs.success());
+    let s = read_json(&dir.join("station").join("station.json"));
+    let v = read_json(&dir.join("vehicle").join("summary.json"));
+    eprintln!(
+        "station: {s}
+vehicle: {}",
+        v["virtual_vehicle"]
+    );
+    // The station noticed the silence and said hello again: a second session, in which the script's commands
+    // were carried out.
+    assert!(s["rehellos"].as_u64().unwrap() >= 1, "{s}");
+    assert_eq!(s["auth"]["sessions"], 2, "{s}");
+    let acks: Vec<&str> = s["command_acks"].as_array().unwrap().iter().map(|a| a.as_str().unwrap()).collect();
+    assert!(acks.iter().any(|a| a.contains("Accepted(Arm)")), "{acks:?}");
+    assert!(acks.iter().any(|a| a.contains("Accepted(Disarm)")), "{acks:?}");
+    // The vehicle: the first session, the replayed one, the station's new one; the dead session's frames
+    // failed their tags on both sides, and nothing of them was acted on.
+    let va = &v["virtual_vehicle"]["auth"];
+    assert_eq!(va["sessions"], 3, "{va}");
+    assert!(va["bad_tag"].as_u64().unwrap() > 0 && s["auth"]["bad_tag"].as_u64().unwrap() > 0, "{va} {s}");
+    assert_eq!(v["crashed"], false);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// Rows of an exported CSV topic (0 when the topic is absent).
 fn csv_rows(dir: &Path, name: &str) -> u64 {
     std::fs::read_to_string(dir.join(name)).map_or(0, |t| t.lines().count().saturating_sub(1) as u64)
