@@ -69,6 +69,18 @@ pub fn tcp_address(spec: &str) -> Result<&str, String> {
     }
 }
 
+/// The address a listening endpoint binds (the virtual vehicle's radio and cameras): `tcp:PORT` binds the
+/// loopback interface, 127.0.0.1, so that nothing off this machine reaches it unless an address is asked for
+/// with `tcp:HOST:PORT` (`tcp:0.0.0.0:5760` for every interface).
+pub fn listen_address(spec: &str) -> Result<String, String> {
+    match spec.strip_prefix("tcp:") {
+        Some(port) if port.parse::<u16>().is_ok() => Ok(format!("127.0.0.1:{port}")),
+        _ => tcp_address(spec).map(str::to_string).map_err(|_| {
+            format!("`{spec}`: tcp:PORT (on 127.0.0.1) or tcp:HOST:PORT expected (e.g. tcp:5760)")
+        }),
+    }
+}
+
 /// An open link: a reader (reads time out after `poll`, returning 0 bytes) and a writer.
 pub struct Link {
     /// The read half.
@@ -161,6 +173,18 @@ pub struct LinkStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_listening_endpoint_binds_the_loopback_unless_a_host_is_asked_for() {
+        assert_eq!(listen_address("tcp:5760").as_deref(), Ok("127.0.0.1:5760"));
+        assert_eq!(listen_address("tcp:0").as_deref(), Ok("127.0.0.1:0"));
+        assert_eq!(listen_address("tcp:0.0.0.0:5760").as_deref(), Ok("0.0.0.0:5760"));
+        assert_eq!(listen_address("tcp:[::1]:5760").as_deref(), Ok("[::1]:5760"));
+        for bad in ["5760", "tcp:", "tcp:70000", "udp:5760", "tcp:host:"] {
+            let e = listen_address(bad).unwrap_err();
+            assert!(e.contains(bad) && e.contains("tcp:PORT"), "{e}");
+        }
+    }
 
     #[test]
     fn link_specs_parse_and_bad_ones_say_what_is_expected() {

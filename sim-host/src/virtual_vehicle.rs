@@ -138,8 +138,9 @@ impl Bound {
     /// Binds the ports.
     pub fn bind(opts: &ServeOptions) -> Result<Self> {
         let bind = |spec: &str, what: &str| -> Result<TcpListener> {
-            let addr = ground_station::link::tcp_address(spec).map_err(|e| anyhow::anyhow!("{what} {e}"))?;
-            TcpListener::bind(addr).with_context(|| format!("{what}: cannot listen on {addr}"))
+            let addr =
+                ground_station::link::listen_address(spec).map_err(|e| anyhow::anyhow!("{what} {e}"))?;
+            TcpListener::bind(&addr).with_context(|| format!("{what}: cannot listen on {addr}"))
         };
         Ok(Self {
             link: bind(&opts.link, "--serve-link")?,

@@ -42,8 +42,8 @@ fn wait(child: &mut Killed, limit: Duration, what: &str) -> std::process::ExitSt
 fn start_vehicle(out: &Path, args: &[&str]) -> (Killed, std::collections::HashMap<String, String>) {
     let mut vehicle = Killed(
         Command::new(env!("CARGO_BIN_EXE_sim-host"))
-            .args(["fly", "--serve-link", "tcp:127.0.0.1:0", "--serve-forward", "tcp:127.0.0.1:0"])
-            .args(["--serve-down", "tcp:127.0.0.1:0"])
+            // No host: the loopback interface only (docs/security.md), checked below.
+            .args(["fly", "--serve-link", "tcp:0", "--serve-forward", "tcp:0", "--serve-down", "tcp:0"])
             .args(args)
             .args(if args.contains(&"--key") { &[][..] } else { &["--no-key"][..] })
             .arg("--out")
@@ -59,6 +59,7 @@ fn start_vehicle(out: &Path, args: &[&str]) -> (Killed, std::collections::HashMa
         let line = lines.next().expect("the vehicle printed its ports").unwrap();
         let mut w = line.split_whitespace();
         if let (Some("serving"), Some(k), Some(v)) = (w.next(), w.next(), w.next()) {
+            assert!(v.starts_with("tcp:127.0.0.1:"), "{k} bound {v}, not the loopback interface");
             ports.insert(k.to_string(), v.to_string());
         }
     }
@@ -780,5 +781,110 @@ fn the_compact_mode_flies_over_a_57600_baud_radio_on_a_pseudo_terminal() {
     eprintln!("accepted: {acc}; vision {}", v["vision"]);
     assert!(acc["vision_fixes"].as_u64().unwrap() > 50 && acc["flow"].as_u64().unwrap() > 50, "{acc}");
     assert_eq!(s["link_decoder"]["bad_crc"], 0);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The key in a key file (64 hex digits).
+fn key_bytes(path: &str) -> protocol::auth::Key {
+    let hex = std::fs::read_to_string(path).unwrap();
+    let hex = hex.trim();
+    std::array::from_fn(|i| u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).unwrap())
+}
+
+/// A frame's body (COBS undone, no delimiter), and a body framed again.
+fn unframe(frame: &[u8]) -> Vec<u8> {
+    let mut b = frame[..frame.len() - 1].to_vec();
+    let n = protocol::frame::cobs_decode_in_place(&mut b).unwrap();
+    b.truncate(n);
+    b
+}
+
+fn reframe(body: &[u8]) -> Vec<u8> {
+    let mut out = vec![0u8; body.len() + 8];
+    let n = protocol::frame::cobs_encode(body, &mut out).unwrap();
+    out.truncate(n);
+    out.push(0);
+    out
+}
+
+#[test]
+fn attacks_on_the_virtual_vehicle_s_radio_are_refused_and_counted() {
+    use protocol::Uplink;
+    use protocol::auth::{Opened, Role, SecureLink};
+    use protocol::frame::{Decoder, MAX_FRAME, encode};
+    use std::io::{Read, Write};
+    let _serial = one_at_a_time();
+    let dir = std::env::temp_dir().join(format!("station-attacks-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    let key = keygen(&dir);
+    let (mut vehicle, ports) = start_vehicle(
+        &dir.join("vehicle"),
+        &["--no-plots", "--no-log", "--duration", "4", "--seed", "5", "--key", &key],
+    );
+    let mut radio = std::net::TcpStream::connect(ports["link"].trim_start_matches("tcp:")).unwrap();
+    radio.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    // The station, played here: its hello, the vehicle's welcome.
+    let mut st = SecureLink::new(Role::Station, key_bytes(&key));
+    let mut buf = [0u8; MAX_FRAME];
+    radio.write_all(st.hello([0x42; 16], &mut buf).unwrap()).unwrap();
+    let mut dec = Decoder::new();
+    let mut byte = [0u8; 1];
+    loop {
+        radio.read_exact(&mut byte).expect("the vehicle's welcome");
+        if let Some(Ok(body)) = dec.push_body(byte[0]) {
+            assert_eq!(st.open::<protocol::Downlink>(body, 0, false, || [0; 16]), Ok(Opened::SessionStarted));
+            break;
+        }
+    }
+    let mut seal = |m: &Uplink| st.seal(m, &mut [0u8; MAX_FRAME]).unwrap().to_vec();
+    let arm = Uplink::Command(control_core::Command::Arm);
+    let heartbeat = seal(&Uplink::Heartbeat);
+    // Forged: a sealed Arm with another tag.
+    let mut forged = unframe(&seal(&arm));
+    let n = forged.len();
+    forged[n - 6..].copy_from_slice(&[0xA5; 6]);
+    // One bit flipped in the payload; cut short.
+    let mut flipped = unframe(&seal(&arm));
+    flipped[2] ^= 0x01;
+    let truncated = unframe(&seal(&arm))[..5].to_vec();
+    // Reordered: the later frame first; the earlier is then a replay.
+    let (earlier, later) = (seal(&arm), seal(&Uplink::Heartbeat));
+    // Under another key: a whole session of another station.
+    let mut other = SecureLink::new(Role::Station, [0x77; 32]);
+    let other_hello = other.hello([0x43; 16], &mut buf).unwrap().to_vec();
+    // Downgrade: the unauthenticated frame of wire version 1.
+    let plain = encode(&arm, &mut buf).unwrap().to_vec();
+    for f in [
+        heartbeat.clone(),
+        reframe(&forged),
+        heartbeat.clone(),
+        reframe(&flipped),
+        reframe(&truncated),
+        later,
+        earlier,
+        other_hello,
+        plain,
+    ] {
+        radio.write_all(&f).unwrap();
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    drop(radio);
+    let end = wait(&mut vehicle, Duration::from_secs(30), "the attacked vehicle");
+    assert!(end.success());
+    let v = read_json(&dir.join("vehicle").join("summary.json"));
+    let (vv, a) = (&v["virtual_vehicle"], &v["virtual_vehicle"]["auth"]);
+    eprintln!("{vv}");
+    // Two heartbeats taken (the first and the reordered later one); nothing else, each refusal by its reason.
+    assert_eq!(vv["uplink_messages"], 2, "{vv}");
+    assert_eq!(a["ok"], 2, "{a}");
+    assert_eq!(a["bad_tag"], 3, "forged, flipped, another key's hello: {a}");
+    assert_eq!(a["replayed"], 2, "the heartbeat again, the earlier frame after the later: {a}");
+    assert_eq!(a["truncated"], 1, "{a}");
+    assert_eq!(a["downgrade"], 1, "{a}");
+    assert_eq!(a["sessions"], 1, "{a}");
+    let modes: Vec<&str> =
+        v["modes"].as_array().unwrap().iter().map(|m| m["mode"].as_str().unwrap()).collect();
+    assert_eq!(modes, ["Disarmed"], "{v}");
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -84,14 +84,15 @@ pub(crate) struct FlyArgs {
     #[arg(long, default_value = "sil", value_name = "sil|qemu:ELF")]
     pub(crate) fc: String,
     /// Be a virtual vehicle for a separate ground station (`sim-host station`): fly in real time and expose
-    /// only the radio, a byte stream on this TCP port (port 0: any free one, printed on stdout).
-    #[arg(long, value_name = "tcp:HOST:PORT", requires = "serve_forward")]
+    /// only the radio, a byte stream on this TCP port (port 0: any free one, printed on stdout). `tcp:PORT`
+    /// listens on 127.0.0.1 only; another interface has to be asked for (`tcp:0.0.0.0:PORT`).
+    #[arg(long, value_name = "tcp:[HOST:]PORT", requires = "serve_forward")]
     pub(crate) serve_link: Option<String>,
     /// The virtual vehicle's forward camera: its frame stream on this port (docs/ground-station.md).
-    #[arg(long, value_name = "tcp:HOST:PORT", requires = "serve_link")]
+    #[arg(long, value_name = "tcp:[HOST:]PORT", requires = "serve_link")]
     pub(crate) serve_forward: Option<String>,
     /// The virtual vehicle's downward camera (when the scenario's vehicle has one).
-    #[arg(long, value_name = "tcp:HOST:PORT", requires = "serve_link")]
+    #[arg(long, value_name = "tcp:[HOST:]PORT", requires = "serve_link")]
     pub(crate) serve_down: Option<String>,
     /// With --serve-link: how long to wait for the station to connect to the radio (s).
     #[arg(long, default_value_t = 60.0)]
