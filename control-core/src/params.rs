@@ -687,6 +687,14 @@ macro_rules! param_ids {
                 }
             }
 
+            /// The parameter's short name, at most 16 characters (the enum variant's name): what a MAVLink
+            /// ground control station shows (`param_id` holds 16 bytes).
+            pub fn short_name(self) -> &'static str {
+                match self {
+                    $( ParamId::$id => stringify!($id), )*
+                }
+            }
+
             fn read(self, p: &FlightParams) -> f32 {
                 match self {
                     $( ParamId::$id => param_ids!(@read $kind p.$($path)+), )*
@@ -786,6 +794,11 @@ impl ParamId {
     /// The parameter with a dotted name.
     pub fn from_name(name: &str) -> Option<ParamId> {
         ParamId::ALL.iter().copied().find(|p| p.name() == name)
+    }
+
+    /// The parameter with this short name ([`ParamId::short_name`]), if any.
+    pub fn from_short_name(name: &str) -> Option<ParamId> {
+        ParamId::ALL.iter().copied().find(|p| p.short_name() == name)
     }
 }
 
@@ -901,6 +914,20 @@ mod tests {
         assert_eq!(p.with(ParamId::RollK4, 1000.0).unwrap_err().field, "gains.roll");
         assert_eq!(p.with(ParamId::Mass, f32::NAN).unwrap_err().field, "vehicle.mass_kg");
         assert!(ParamId::from_name("gains.roll.k[9]").is_none());
+    }
+
+    #[test]
+    fn short_names_fit_mavlink_s_16_bytes_and_are_unique() {
+        let mut names: std::vec::Vec<&str> = ParamId::ALL.iter().map(|id| id.short_name()).collect();
+        assert!(names.iter().all(|n| !n.is_empty() && n.len() <= 16 && n.is_ascii()), "{names:?}");
+        assert_eq!(ParamId::TrajectoryXStart.short_name(), "TrajectoryXStart");
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), ParamId::ALL.len());
+        for id in ParamId::ALL {
+            assert_eq!(ParamId::from_short_name(id.short_name()), Some(id));
+        }
+        assert_eq!(ParamId::from_short_name("Nope"), None);
     }
 
     #[test]

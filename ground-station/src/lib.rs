@@ -9,6 +9,7 @@ pub mod calib;
 pub mod clock;
 pub mod console;
 pub mod link;
+pub mod mavlink_bridge;
 pub mod operator;
 pub mod source;
 pub mod stream;

@@ -94,6 +94,16 @@ pub fn markdown() -> Result<String> {
         out.push_str(&format!("| `{short}` | `{}` | {default} | {range} | {unit} | {doc} |\n", spec.ty));
     }
     out.push_str(
+        "\n# Over the radio and MAVLink\n\n\
+         The parameters a ground station reads and changes over the radio (`control_core::params::ParamId`),\n\
+         with the short name a MAVLink ground control station shows (at most 16 characters, `param_id`) and the\n\
+         index of `PARAM_VALUE` (docs/mavlink.md).\n\n\
+         | index | MAVLink name | parameter |\n|---|---|---|\n",
+    );
+    for (i, id) in control_core::params::ParamId::ALL.iter().enumerate() {
+        out.push_str(&format!("| {i} | `{}` | `{}` |\n", id.short_name(), id.name()));
+    }
+    out.push_str(
         "\n# Simulator values\n\n\
          The simulator's own values (scene, cameras, model, IMU, link, mission, mismatch, wind, faults), each\n\
          with its range declared once in `sim-host/src/scenario/limits.rs`. A scenario is refused when a value\n\

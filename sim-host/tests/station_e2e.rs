@@ -2,10 +2,12 @@
 //! station`) as two processes connected only by the radio's byte stream and the two cameras' frame streams
 //! (rendered), flying the short mission (arm, take off, hover, land) in real time from arm to disarm. Ports
 //! are chosen by the vehicle (port 0) and read from its stdout; both processes are killed if the test fails.
+mod common;
+
+use common::{Killed, read_json, start_vehicle, wait};
 use serde_json::Value;
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// The tests here run processes in real time: one at a time, so that they do not slow each other down.
@@ -13,57 +15,6 @@ static REAL_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
 fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
     REAL_TIME.lock().unwrap_or_else(|e| e.into_inner())
-}
-
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        if self.0.try_wait().ok().flatten().is_none() {
-            self.0.kill().ok();
-            self.0.wait().ok();
-        }
-    }
-}
-
-fn wait(child: &mut Killed, limit: Duration, what: &str) -> std::process::ExitStatus {
-    let end = Instant::now() + limit;
-    loop {
-        if let Some(s) = child.0.try_wait().expect("waiting") {
-            return s;
-        }
-        assert!(Instant::now() < end, "{what} did not end within {limit:?}");
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
-
-/// Starts the virtual vehicle on ports of its choosing (`--serve-* tcp:127.0.0.1:0`) with `args`, writing into
-/// `out`; returns it and the ports it printed (`link`, `forward`, `down`).
-fn start_vehicle(out: &Path, args: &[&str]) -> (Killed, std::collections::HashMap<String, String>) {
-    let mut vehicle = Killed(
-        Command::new(env!("CARGO_BIN_EXE_sim-host"))
-            // No host: the loopback interface only (docs/security.md), checked below.
-            .args(["fly", "--serve-link", "tcp:0", "--serve-forward", "tcp:0", "--serve-down", "tcp:0"])
-            .args(args)
-            .args(if args.contains(&"--key") { &[][..] } else { &["--no-key"][..] })
-            .arg("--out")
-            .arg(out)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("starting the virtual vehicle"),
-    );
-    let mut ports = std::collections::HashMap::new();
-    let mut lines = BufReader::new(vehicle.0.stdout.take().unwrap()).lines();
-    while ports.len() < 3 {
-        let line = lines.next().expect("the vehicle printed its ports").unwrap();
-        let mut w = line.split_whitespace();
-        if let (Some("serving"), Some(k), Some(v)) = (w.next(), w.next(), w.next()) {
-            assert!(v.starts_with("tcp:127.0.0.1:"), "{k} bound {v}, not the loopback interface");
-            ports.insert(k.to_string(), v.to_string());
-        }
-    }
-    (vehicle, ports)
 }
 
 /// Runs the station (the hover script, `extra` options) on the radio `link` and the vehicle's camera
@@ -96,11 +47,6 @@ fn fly_hover(
         read_json(&dir.join("vehicle").join("summary.json")),
         read_json(&dir.join("station").join("station.json")),
     )
-}
-
-fn read_json(p: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(p).unwrap_or_else(|e| panic!("{}: {e}", p.display())))
-        .unwrap()
 }
 
 #[test]

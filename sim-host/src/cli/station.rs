@@ -71,6 +71,12 @@ pub(crate) struct StationArgs {
     /// An unauthenticated radio, for development only: anyone on it may command the vehicle.
     #[arg(long)]
     pub(crate) no_key: bool,
+    /// Serve a MAVLink 2 ground control station (QGroundControl, MAVProxy, pymavlink) at `udp:HOST:PORT`
+    /// (QGroundControl listens on udp:127.0.0.1:14550): the vehicle's heartbeat, attitude and local
+    /// position in NED, its status texts; the station's commands (arm, take-off, land, the custom modes)
+    /// and its parameters. A loopback HOST binds the loopback interface only (docs/mavlink.md).
+    #[arg(long, value_name = "udp:HOST:PORT")]
+    pub(crate) mavlink: Option<String>,
 }
 
 pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
@@ -125,6 +131,7 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
         frames: a.frames.policy(),
         compact: a.compact,
         key,
+        mavlink: a.mavlink.clone(),
     };
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     // Ctrl-C ends the run with station.json written (the motors are the vehicle's: a real operator lands or

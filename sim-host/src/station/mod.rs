@@ -8,6 +8,10 @@
 //! station's time (`LogRecord::Station`), the clock sync's mapping to the vehicle's clock after each answer
 //! it accepted, and the camera frames if asked (at their capture time on the vehicle's clock). The log is
 //! finished (with its end record) however the run ends, an error included.
+mod mavlink;
+
+use self::mavlink::MavlinkSide;
+pub use self::mavlink::MavlinkStats;
 use crate::downward::GroundFlow;
 use crate::flightlog::{
     CameraFrame, CameraId, FrameEncoding, FramePolicy, LogRecord, LogWriter, StationEvent,
@@ -21,6 +25,7 @@ use control_core::FlightMode;
 use ground_station::clock::ClockSync;
 use ground_station::console::{ConsoleView, KeyAction};
 use ground_station::link::{Link, LinkSpec};
+use ground_station::mavlink_bridge::Request;
 use ground_station::operator::{Operator, Script, command_name};
 use ground_station::source::{SourceWant, now_unix_us};
 use ground_station::stream::Frame;
@@ -72,6 +77,8 @@ pub struct StationOptions {
     pub compact: bool,
     /// The radio's key, or `None` for an unauthenticated development link.
     pub key: Option<protocol::auth::Key>,
+    /// A MAVLink ground control station to serve (`udp:HOST:PORT`, docs/mavlink.md), if any.
+    pub mavlink: Option<String>,
 }
 
 /// What the station counted.
@@ -145,6 +152,8 @@ pub struct StationStats {
     pub ended: String,
     /// Records in the station's flight log.
     pub log_records: u64,
+    /// The MAVLink ground control station's endpoint, when there is one: what the bridge took and sent.
+    pub mavlink: Option<MavlinkStats>,
 }
 
 /// The station's flight log.
@@ -377,6 +386,7 @@ fn station_loop(
     let down = opts.down.as_deref().map(|d| camera_thread(d, down_want, "down"));
     let (mut forward_watch, mut down_watch) = (StallWatch::default(), StallWatch::default());
 
+    let mut mav = opts.mavlink.as_deref().map(MavlinkSide::open).transpose()?;
     let mut vision = GroundVision::new(scenario);
     let forward_camera = scenario.forward_camera_model();
     let mut flow = down.as_ref().map(|_| GroundFlow::new(scenario));
@@ -435,6 +445,10 @@ fn station_loop(
         if t > opts.duration_s {
             break format!("the duration ({} s) ran out", opts.duration_s);
         }
+        if let Some(m) = mav.as_mut() {
+            let out = m.bridge.tick(start.elapsed().as_micros() as u64);
+            m.send(out);
+        }
         let session = security.lock().map(|sec| sec.ready()).unwrap_or(false);
         if session && !had_session {
             last_down = t;
@@ -478,6 +492,10 @@ fn station_loop(
                     stats.modes.push((t, mode));
                 }
                 was_airborne |= tm.mode.airborne();
+                if let Some(mv) = mav.as_mut() {
+                    let out = mv.bridge.telemetry(&tm);
+                    mv.send(out);
+                }
                 telemetry = Some(tm);
                 telemetry_at = t;
                 continue;
@@ -496,9 +514,20 @@ fn station_loop(
                         rec.event(StationEvent::Clock { station_time_us: at, vehicle_time_us: v, bound_us })?;
                     }
                 }
-                Downlink::CommandAck(r) => stats.command_acks.push(format!("{t:.2} s: {r:?}")),
+                Downlink::CommandAck(r) => {
+                    stats.command_acks.push(format!("{t:.2} s: {r:?}"));
+                    if let Some(mv) = mav.as_mut() {
+                        let out = mv.bridge.command_result(r);
+                        mv.send(out);
+                    }
+                }
                 Downlink::LinkStatus(l) => stats.vehicle_link = Some(l),
                 Downlink::Param(r) => {
+                    if let Some(mv) = mav.as_mut() {
+                        mv.params.answered(r.id);
+                        let out = mv.bridge.param_reply(r);
+                        mv.send(out);
+                    }
                     if opts.compact && r.id == control_core::params::ParamId::TelemetryEvery {
                         stats.compact_announced = Some(r.outcome == control_core::ParamOutcome::Ok);
                     }
@@ -557,6 +586,43 @@ fn station_loop(
                     stats.operator_commands.push((t, command_name(Some(c)).into()));
                 }
                 KeyAction::Quit => quit = true,
+            }
+        }
+        // The ground control station's commands and parameter requests: each command goes up at once (the
+        // operator holds one), a kill as the console's does.
+        if let Some(mv) = mav.as_mut() {
+            let now_us = start.elapsed().as_micros() as u64;
+            for (from, m) in mv.udp.receive().context("--mavlink: the ground control station's socket")? {
+                let (requests, replies) = mv.bridge.take(from, &m, now_us);
+                mv.send(replies);
+                for r in requests {
+                    match r {
+                        Request::Kill => {
+                            operator.kill();
+                            stats.operator_commands.push((t, "kill (mavlink)".into()));
+                            mv.stats.commands += 1;
+                        }
+                        Request::Command(c) => {
+                            operator.command(c);
+                            stats.operator_commands.push((t, format!("{} (mavlink)", command_name(Some(c)))));
+                            mv.stats.commands += 1;
+                            if let Some(c) = operator.tick(now_us, telemetry.map(|tm| tm.mode)) {
+                                send(&Uplink::Command(c), &mut writer, rec)?;
+                                stats.uplink_commands += 1;
+                            }
+                        }
+                        Request::ParamGet(_) | Request::ParamSet(..) => mv.params.push(r),
+                    }
+                }
+            }
+            // Parameter requests one at a time (the vehicle answers one a step).
+            if let Some(m) = mv.params.next(now_us) {
+                send(&m, &mut writer, rec)?;
+                mv.stats.param_requests += 1;
+                stats.uplink_other += 1;
+            }
+            if let Ok(c) = decoder_counts.lock() {
+                mv.bridge.set_link_errors(c.0.errors() as u64);
             }
         }
         // The operator's script runs on the station's monotonic clock (a step of the system clock must not
@@ -691,6 +757,7 @@ fn station_loop(
             .map_or(f64::NAN, |v| *v as f64 * 1e-3)
     };
     stats.frame_to_uplink_ms = [q(0.5), q(0.95)];
+    stats.mavlink = mav.map(MavlinkSide::finish);
     Ok(stats)
 }
 
