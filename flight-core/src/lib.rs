@@ -169,7 +169,8 @@ pub struct StepOutput {
     pub flow: Option<FlowOutcome>,
     /// Flow counters since start.
     pub flow_counters: FlowCounters,
-    /// The answer to this step's parameter request (the last, when several arrived).
+    /// The answer to a parameter request: this step's, or one that waited (several that arrive in one step
+    /// are answered one a step, in order).
     pub param_reply: Option<control_core::ParamReply>,
     /// The station time of this step's clock-synchronisation request, to echo with this step's time (the last,
     /// when several arrived).
@@ -242,7 +243,18 @@ pub struct FlightStack {
     solved: heapless::Vec<(u64, FrameOutcome), SOLVE_QUEUE>,
     /// The last frame's observation, to tell a frozen camera.
     last_observation: Option<vision_core::LineObservation>,
+    /// Commands that arrived in a step that already had one: carried out one a step, in order.
+    commands: heapless::Deque<Command, REQUEST_QUEUE>,
+    /// Parameter answers waiting for a step of their own (a step reports one).
+    param_replies: heapless::Deque<control_core::ParamReply, REQUEST_QUEUE>,
+    /// Commands and parameter requests that found their queue full.
+    requests_dropped: u32,
 }
+
+/// How many commands, and how many parameter answers, wait for a step of their own. A 115200-baud radio
+/// carries about four of the smallest frames in a 2 ms step; the station sends parameter requests one at a
+/// time and commands seconds apart.
+pub const REQUEST_QUEUE: usize = 8;
 
 impl FlightStack {
     /// A stack with validated parameters.
@@ -263,7 +275,23 @@ impl FlightStack {
             jobs: heapless::Deque::new(),
             solved: heapless::Vec::new(),
             last_observation: None,
+            commands: heapless::Deque::new(),
+            param_replies: heapless::Deque::new(),
+            requests_dropped: 0,
         })
+    }
+
+    /// A parameter answer: this step's, or queued for a later step when this one has its answer.
+    fn reply(&mut self, r: control_core::ParamReply, slot: &mut Option<control_core::ParamReply>) {
+        match slot {
+            None => *slot = Some(r),
+            Some(_) => self.requests_dropped += self.param_replies.push_back(r).is_err() as u32,
+        }
+    }
+
+    /// Commands and parameter requests lost because more than [`REQUEST_QUEUE`] of a kind waited.
+    pub fn link_requests_dropped(&self) -> u32 {
+        self.requests_dropped
     }
 
     /// The checks of the vision and flow parts of a configuration.
@@ -344,10 +372,10 @@ impl FlightStack {
 
     /// One control period.
     pub fn step(&mut self, inp: &StepInput<'_>) -> StepOutput {
-        let mut command: Option<Command> = None;
+        let mut command: Option<Command> = self.commands.pop_front();
         let mut fix: Option<PositionFix> = None;
         let mut frame = None;
-        let mut param_reply = None;
+        let mut param_reply = self.param_replies.pop_front();
         let mut time_sync = None;
         let mut flow: Option<BodyVelocity> = None;
         let mut flow_outcome = None;
@@ -422,10 +450,25 @@ impl FlightStack {
                 continue;
             }
             match msg {
-                Uplink::Command(c) => command = Some(*c),
+                // A disarm is carried out at once and cancels the commands waiting (an arm queued before a
+                // kill must not arm again); other commands in their order, one a step.
+                Uplink::Command(Command::Disarm) => {
+                    command = Some(Command::Disarm);
+                    self.commands.clear();
+                }
+                Uplink::Command(c) => match command {
+                    None => command = Some(*c),
+                    Some(_) => self.requests_dropped += self.commands.push_back(*c).is_err() as u32,
+                },
                 Uplink::Heartbeat => {}
-                Uplink::ParamSet { id, value } => param_reply = Some(self.control.set_param(*id, *value)),
-                Uplink::ParamGet(id) => param_reply = Some(self.control.get_param(*id)),
+                Uplink::ParamSet { id, value } => {
+                    let r = self.control.set_param(*id, *value);
+                    self.reply(r, &mut param_reply);
+                }
+                Uplink::ParamGet(id) => {
+                    let r = self.control.get_param(*id);
+                    self.reply(r, &mut param_reply);
+                }
                 Uplink::TimeSync { station_time_us } => time_sync = Some(*station_time_us),
                 // Handled above.
                 Uplink::Vision(_) | Uplink::PackedVision(_) | Uplink::Flow(_) | Uplink::PackedFlow(_) => {}
@@ -468,6 +511,47 @@ mod tests {
             gyro_rad_s: [0.0; 3],
             accel_m_s2: [0.0, 0.0, control_core::GRAVITY],
         })
+    }
+
+    #[test]
+    fn several_requests_in_one_step_are_each_answered_and_a_disarm_goes_first() {
+        let mut s = FlightStack::new(FlightConfig::paper()).unwrap();
+        let mut t = 0;
+        let mut step = |s: &mut FlightStack, uplink: &[Uplink]| {
+            t += 2000;
+            s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, baro_m: None, uplink, landed: None })
+        };
+        for _ in 0..400 {
+            step(&mut s, &[Uplink::Heartbeat]);
+        }
+        // Three parameter requests arrive within one step (a fast radio, a step late): three answers, one a
+        // step, in their order.
+        let asked = [
+            Uplink::ParamGet(ParamId::TrajectoryYd),
+            Uplink::ParamSet { id: ParamId::TrajectorySpeed, value: 0.3 },
+            Uplink::ParamGet(ParamId::TrajectoryZd),
+        ];
+        let mut replies = std::vec::Vec::new();
+        replies.extend(step(&mut s, &asked).param_reply);
+        for _ in 0..5 {
+            replies.extend(step(&mut s, &[Uplink::Heartbeat]).param_reply);
+        }
+        let ids: std::vec::Vec<ParamId> = replies.iter().map(|r| r.id).collect();
+        assert_eq!(ids, [ParamId::TrajectoryYd, ParamId::TrajectorySpeed, ParamId::TrajectoryZd]);
+        assert_eq!(replies[1].value, 0.3);
+        assert_eq!(s.link_requests_dropped(), 0);
+        // Two commands in one step: both carried out, one a step; a disarm among them goes first.
+        let out = step(&mut s, &[Uplink::Command(Command::Arm), Uplink::Command(Command::TakeOff)]);
+        assert_eq!(out.control.status.mode, FlightMode::Armed);
+        let out = step(&mut s, &[Uplink::Heartbeat]);
+        assert_eq!(out.control.status.mode, FlightMode::TakeOff, "the second command, a step later");
+        let out = step(&mut s, &[Uplink::Command(Command::Land), Uplink::Command(Command::Disarm)]);
+        assert_eq!(out.control.status.mode, FlightMode::Disarmed, "the disarm at once");
+        // More than the step and the queue hold (one answered now, REQUEST_QUEUE later): the excess is
+        // counted, never silent.
+        let flood = [Uplink::ParamGet(ParamId::TrajectoryYd); REQUEST_QUEUE + 3];
+        step(&mut s, &flood);
+        assert_eq!(s.link_requests_dropped(), 2);
     }
 
     #[test]

@@ -457,8 +457,9 @@ impl Bridge {
     }
 }
 
-/// Parameter requests for the vehicle, one at a time: the vehicle answers one parameter per control step, so
-/// requests sent together (a whole `PARAM_REQUEST_LIST`) would lose answers. The next goes when the last is
+/// Parameter requests for the vehicle, one at a time: the vehicle answers one parameter per control step and
+/// queues only a few more (`flight_core::REQUEST_QUEUE`), so a whole `PARAM_REQUEST_LIST` sent at once would
+/// lose answers, and a radio loses frames. The next goes when the last is
 /// answered, or after [`PARAM_RETRY_US`]; after [`PARAM_TRIES`] tries a request is given up and counted.
 #[derive(Debug, Default)]
 pub struct ParamQueue {
