@@ -333,6 +333,26 @@ pub fn write_flow_csv(path: &Path, records: &[FlowRecord]) -> Result<()> {
     crate::files::write_atomic(path, s.as_bytes())
 }
 
+/// The setpoint as the plots draw it: what the controller used while it flew (the airborne modes), nothing
+/// before the take-off or after the disarm (the reference then is not flown), and the height clipped at the
+/// floor (a landing drives its reference below the pad to find the touchdown, docs/architecture.md; the
+/// vehicle cannot follow it there).
+pub fn plotted_setpoint(records: &[Record], k: usize, vel: bool) -> Vec<f64> {
+    records
+        .iter()
+        .map(|r| {
+            if !r.mode.airborne() {
+                return f64::NAN;
+            }
+            match (vel, k) {
+                (true, _) => r.des_v[k] as f64,
+                (false, 2) => (r.des_p[2] as f64).max(0.0),
+                (false, _) => r.des_p[k] as f64,
+            }
+        })
+        .collect()
+}
+
 /// Writes x, y, z and the horizontal velocities over time (truth, estimate, desired, and the optical flow's
 /// velocity), like the paper's figures 7-11 with the truth beside every estimate.
 pub fn write_plots(dir: &Path, records: &[Record], flow: &[FlowRecord]) -> Result<Vec<PathBuf>> {
@@ -359,7 +379,7 @@ pub fn write_plots(dir: &Path, records: &[Record], flow: &[FlowRecord]) -> Resul
     for (file, title, ylabel, k, vel) in panels {
         let truth = col(&|r| if vel { r.true_v[k] } else { r.true_p[k] });
         let est = col(&|r| (if vel { r.est_v[k] } else { r.est_p[k] }) as f64);
-        let des = col(&|r| (if vel { r.des_v[k] } else { r.des_p[k] }) as f64);
+        let des = plotted_setpoint(records, k, vel);
         let flow_v: Vec<f64> = if vel { flow.iter().map(|r| r.measured[k]).collect() } else { Vec::new() };
         let mut series = vec![
             Series { name: "desired", color: [110, 110, 110], xs: &t, ys: &des, dashed: true },
@@ -391,4 +411,52 @@ pub fn write_plots(dir: &Path, records: &[Record], flow: &[FlowRecord]) -> Resul
         out.push(path);
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use control_core::FlightMode;
+
+    fn record(t_s: f64, mode: FlightMode, des_z: f32) -> Record {
+        Record {
+            t_s,
+            true_p: [0.0; 3],
+            true_v: [0.0; 3],
+            true_att: [0.0; 3],
+            est_p: [0.0; 3],
+            est_v: [0.0; 3],
+            est_att: [0.0; 3],
+            des_p: [1.0, 1.3, des_z],
+            des_v: [0.0, 0.0, -0.3],
+            motor_cmd: [0.0; 4],
+            motor: [0.0; 4],
+            mode,
+            fix_age_s: 0.0,
+            tilt_std_rad: 0.0,
+        }
+    }
+
+    #[test]
+    fn the_plotted_height_setpoint_stops_at_the_floor_and_at_the_disarm() {
+        // The landing's reference goes below the pad (-0.12 m) to find the touchdown; after the disarm the
+        // reference is the mission height again (0.80 m), and before the take-off nothing is flown.
+        let rs = [
+            record(0.0, FlightMode::Disarmed, 0.8),
+            record(0.5, FlightMode::Armed, 0.8),
+            record(1.0, FlightMode::TakeOff, 0.1),
+            record(2.0, FlightMode::Landing, 0.05),
+            record(2.5, FlightMode::Landing, -0.12),
+            record(3.0, FlightMode::Disarmed, 0.8),
+        ];
+        let z = plotted_setpoint(&rs, 2, false);
+        assert!(z[0].is_nan() && z[1].is_nan() && z[5].is_nan(), "{z:?}");
+        assert_eq!(&z[2..5], &[0.1f32 as f64, 0.05f32 as f64, 0.0]);
+        let y = plotted_setpoint(&rs, 1, false);
+        assert_eq!(y[3], 1.3f32 as f64);
+        assert!(y[5].is_nan());
+        let vz = plotted_setpoint(&rs, 2, true);
+        assert_eq!(vz[4], -0.3f32 as f64, "velocities are not clipped");
+        assert!(vz[0].is_nan());
+    }
 }
