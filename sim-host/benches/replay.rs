@@ -30,6 +30,7 @@ fn flight_log(
         log: true,
         frames,
         serve: None,
+        mavlink: None,
     };
     fly(&opts, |_, _| {}).expect("flight");
     dir.join(LOG_FILE)

@@ -32,6 +32,43 @@ pub struct FlyOptions {
     pub frames: crate::flightlog::FramePolicy,
     /// Serve a separate ground station in real time (the virtual vehicle) instead of running one here.
     pub serve: Option<crate::virtual_vehicle::ServeOptions>,
+    /// Fly in real time with a MAVLink ground control station commanding the in-process station.
+    pub mavlink: Option<MavlinkFly>,
+}
+
+/// `fly --mavlink`: the ground control station's address, and the flag that stops the real-time flight.
+#[derive(Clone, Debug)]
+pub struct MavlinkFly {
+    /// `udp:HOST:PORT` (docs/mavlink.md).
+    pub spec: String,
+    /// Set (by Ctrl-C) to end the flight with its outputs written.
+    pub stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+/// Runs `sil` paced to the wall clock (a ground control station commands it in real time) until it ends or
+/// `stop` is set, calling `progress` with the simulated time about every 0.1 s of it.
+pub fn run_real_time(
+    sil: &mut Sil,
+    duration_s: f64,
+    stop: &std::sync::atomic::AtomicBool,
+    mut progress: impl FnMut(f64),
+) -> RunStats {
+    let end_us = (duration_s * 1e6).round() as u64;
+    let start = Instant::now();
+    let mut last = -1.0;
+    while !stop.load(std::sync::atomic::Ordering::Relaxed) && sil.step(end_us) {
+        let t = sil.time_s();
+        if t - last >= 0.1 {
+            last = t;
+            progress(t);
+        }
+        let ahead = t - start.elapsed().as_secs_f64();
+        if ahead > 0.002 {
+            std::thread::sleep(std::time::Duration::from_secs_f64(ahead));
+        }
+    }
+    progress(sil.time_s());
+    sil.finish()
 }
 
 /// The outcome of a flight.
@@ -110,9 +147,21 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
     }
     let t0 = Instant::now();
     let mut serve_stats = None;
-    let stats = match &opts.serve {
-        None => sil.run(end, |t| progress(t, end)),
-        Some(serve) => {
+    let mut mavlink_stats = None;
+    let stats = match (&opts.serve, &opts.mavlink) {
+        (Some(_), Some(_)) => {
+            anyhow::bail!("--mavlink is for a flight without a separate station: give it to the station")
+        }
+        (None, Some(m)) => {
+            let endpoint = crate::mavlink_endpoint::MavlinkEndpoint::open(&m.spec)?;
+            eprintln!("MAVLink: sending to {} from {}", m.spec, endpoint.local_addr());
+            sil.set_ground_hook(Box::new(endpoint));
+            let st = run_real_time(&mut sil, end, &m.stop, |t| progress(t, end));
+            mavlink_stats = sil.take_ground_hook().map(|h| h.finish());
+            st
+        }
+        (None, None) => sil.run(end, |t| progress(t, end)),
+        (Some(serve), None) => {
             let bound = crate::virtual_vehicle::Bound::bind(serve)?;
             let (link, forward, down) = bound.addresses();
             // On stdout, one line each, for whoever starts the station (a port 0 was chosen here).
@@ -154,6 +203,9 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
     let mut summary = summary_json(opts, &stats, wall, &files);
     if let Some(ss) = serve_stats {
         summary["virtual_vehicle"] = serde_json::to_value(ss)?;
+    }
+    if let Some(ms) = mavlink_stats {
+        summary["mavlink"] = serde_json::to_value(ms)?;
     }
     let path = opts.out.join("summary.json");
     crate::files::write_atomic(&path, (serde_json::to_string_pretty(&summary)? + "\n").as_bytes())?;

@@ -13,6 +13,7 @@ pub mod fly;
 pub mod imageio;
 pub mod import;
 pub mod link_key;
+pub mod mavlink_endpoint;
 pub use vehicle_model as model;
 pub mod params_doc;
 pub mod plot;

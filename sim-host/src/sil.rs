@@ -13,6 +13,7 @@ use crate::downward::{CamPose, GroundFlow, analytic_flow};
 use crate::fil::{QemuFc, QemuOptions};
 use crate::flightlog::LogRecord;
 use crate::imageio::FrameImages;
+use crate::mavlink_endpoint::{GroundRequest, MavlinkEndpoint};
 use crate::model::{ModelParams, Quadrotor, quat_to_mat};
 use crate::render::{DownPose, DownRenderer, ForwardRenderer};
 use crate::rng::{SimRng, splitmix64};
@@ -303,6 +304,34 @@ pub struct Sil {
     /// A separate ground station's ports (the virtual vehicle): when set, the cameras' frames and the
     /// downlink go out through them and no ground station runs in this process.
     ports: Option<StationPorts>,
+    /// A ground control station beside the in-process station (`fly --mavlink`).
+    ground_hook: Option<Box<dyn GroundHook + Send>>,
+}
+
+/// A ground control station beside the in-process ground station (`sim-host fly --mavlink`): it sees what came
+/// down the radio, when the station does, and what it asks goes up the radio as the station's.
+pub trait GroundHook {
+    /// A message that came down the radio.
+    fn downlink(&mut self, d: &protocol::Downlink);
+    /// What the ground control station asks at `t_us` (the simulated clock, paced to the wall clock).
+    fn poll(&mut self, t_us: u64) -> Result<Vec<GroundRequest>>;
+    /// Ends it: what it counted.
+    fn finish(self: Box<Self>) -> crate::mavlink_endpoint::MavlinkStats;
+}
+
+impl GroundHook for MavlinkEndpoint {
+    fn downlink(&mut self, d: &protocol::Downlink) {
+        MavlinkEndpoint::downlink(self, d);
+    }
+
+    fn poll(&mut self, t_us: u64) -> Result<Vec<GroundRequest>> {
+        self.tick(t_us);
+        MavlinkEndpoint::poll(self, t_us)
+    }
+
+    fn finish(self: Box<Self>) -> crate::mavlink_endpoint::MavlinkStats {
+        MavlinkEndpoint::finish(*self)
+    }
 }
 
 /// What a virtual vehicle exposes to a separate ground station, as a real one does: its cameras' frames and
@@ -494,7 +523,21 @@ impl Sil {
             done_at: None,
             last_failsafe: None,
             ports: None,
+            ground_hook: None,
         })
+    }
+
+    /// Lets a ground control station command the vehicle through the in-process station ([`GroundHook`]),
+    /// in place of the mission's script (the operator's script is `manual`: nothing is sent unless it asks).
+    pub fn set_ground_hook(&mut self, hook: Box<dyn GroundHook + Send>) {
+        self.operator =
+            ground_station::operator::Operator::with_script(ground_station::operator::Script::Manual);
+        self.ground_hook = Some(hook);
+    }
+
+    /// The ground control station's hook, taken back.
+    pub fn take_ground_hook(&mut self) -> Option<Box<dyn GroundHook + Send>> {
+        self.ground_hook.take()
     }
 
     /// Serves a separate ground station ([`StationPorts`]): the frames and the downlink leave through the
@@ -849,9 +892,33 @@ impl Sil {
             if let Some(t) = d.telemetry() {
                 self.station_telemetry = Some(t);
             }
+            if let Some(h) = self.ground_hook.as_mut() {
+                h.downlink(&d);
+            }
         }
         let lat = (self.scenario.link.latency_s * 1e6) as u64;
         let mode = self.station_telemetry.map(|t| t.mode);
+        if let Some(mut h) = self.ground_hook.take() {
+            match h.poll(self.t_us) {
+                Ok(requests) => {
+                    for r in requests {
+                        match r {
+                            GroundRequest::Kill => self.operator.kill(),
+                            GroundRequest::Command(c) => {
+                                self.operator.command(c);
+                                // At once: the operator holds one command.
+                                if let Some(c) = self.operator.tick(self.t_us, mode) {
+                                    self.send(self.t_us + lat, Uplink::Command(c));
+                                }
+                            }
+                            GroundRequest::Uplink(m) => self.send(self.t_us + lat, m),
+                        }
+                    }
+                }
+                Err(e) => self.stats.fc_error = Some(format!("{e:#}")),
+            }
+            self.ground_hook = Some(h);
+        }
         if let Some(c) = self.operator.tick(self.t_us, mode) {
             self.send(self.t_us + lat, Uplink::Command(c));
         }

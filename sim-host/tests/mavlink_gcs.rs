@@ -56,17 +56,7 @@ fn pymavlink_sees_and_commands_the_virtual_vehicle_through_the_station() {
         &["--no-plots", "--duration", "90", "--seed", "2", "--connect-timeout", "30"],
     );
     let seen_path = dir.join("gcs.json");
-    let mut gcs = Killed(
-        Command::new(&py)
-            .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/peers/mavlink_gcs.py"))
-            .arg(&seen_path)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("starting the pymavlink ground control station"),
-    );
-    let line = BufReader::new(gcs.0.stdout.take().unwrap()).lines().next().expect("the peer's port").unwrap();
-    let port = line.strip_prefix("port ").unwrap_or_else(|| panic!("the peer printed {line:?}"));
+    let (mut gcs, port) = start_peer(&py, &seen_path);
     let mut station = Killed(
         Command::new(env!("CARGO_BIN_EXE_sim-host"))
             .args([
@@ -96,7 +86,77 @@ fn pymavlink_sees_and_commands_the_virtual_vehicle_through_the_station() {
     assert!(st.success() && vs.success(), "station {st}, vehicle {vs}");
     let s = read_json(&dir.join("station").join("station.json"));
     let v = read_json(&dir.join("vehicle").join("summary.json"));
-    eprintln!("station mavlink: {}\npeer: {} s", s["mavlink"], seen["seconds"]);
+    assert_eq!(s["ended"], "the vehicle landed and disarmed");
+    check(
+        &seen,
+        &v,
+        &s["mavlink"],
+        &dir.join("station").join("station.log"),
+        "station_downlink_telemetry.csv",
+        &dir,
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn pymavlink_flies_the_simulated_vehicle_of_fly_mavlink() {
+    let Some(py) = python() else { return };
+    let dir = std::env::temp_dir().join(format!("mavlink-fly-{}", std::process::id()));
+    std::fs::remove_dir_all(&dir).ok();
+    std::fs::create_dir_all(&dir).unwrap();
+    let seen_path = dir.join("gcs.json");
+    let (mut gcs, port) = start_peer(&py, &seen_path);
+    let mut fly = Killed(
+        Command::new(env!("CARGO_BIN_EXE_sim-host"))
+            .args(["fly", "--no-plots", "--seed", "3", "--duration", "80"])
+            .args(["--mavlink", &format!("udp:127.0.0.1:{port}")])
+            .arg("--out")
+            .arg(dir.join("fly"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("starting sim-host fly"),
+    );
+    let g = wait(&mut gcs, Duration::from_secs(120), "the pymavlink peer");
+    let seen = read_json(&seen_path);
+    assert!(g.success(), "the peer: {}", seen["error"]);
+    let f = wait(&mut fly, Duration::from_secs(30), "sim-host fly");
+    assert!(f.success(), "fly {f}");
+    let v = read_json(&dir.join("fly").join("summary.json"));
+    // Paced to the wall clock: about real time.
+    let rtf = v["real_time_factor"].as_f64().unwrap();
+    assert!((0.8..1.05).contains(&rtf), "real-time factor {rtf}");
+    check(&seen, &v, &v["mavlink"], &dir.join("fly").join("flight.log"), "downlink_telemetry.csv", &dir);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Starts the pymavlink peer writing what it saw to `seen`; returns it and the port it listens on.
+fn start_peer(py: &str, seen: &Path) -> (Killed, String) {
+    let mut gcs = Killed(
+        Command::new(py)
+            .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/peers/mavlink_gcs.py"))
+            .arg(seen)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("starting the pymavlink ground control station"),
+    );
+    let line = BufReader::new(gcs.0.stdout.take().unwrap()).lines().next().expect("the peer's port").unwrap();
+    let port = line.strip_prefix("port ").unwrap_or_else(|| panic!("the peer printed {line:?}")).to_string();
+    (gcs, port)
+}
+
+/// What the peer saw (`seen`), against the vehicle's summary `v`, the endpoint's counters `m` and the
+/// telemetry in the flight log `log` (exported to CSV under `dir`, its telemetry topic `telemetry_csv`).
+fn check(
+    seen: &serde_json::Value,
+    v: &serde_json::Value,
+    m: &serde_json::Value,
+    log: &Path,
+    telemetry_csv: &str,
+    dir: &Path,
+) {
+    eprintln!("mavlink: {m}\npeer: {} s", seen["seconds"]);
 
     // The heartbeat within 2 s of the station's start: a quadrotor, system 1, component 1.
     let first_hb = seen["first_heartbeat_s"].as_f64().unwrap();
@@ -123,7 +183,6 @@ fn pymavlink_sees_and_commands_the_virtual_vehicle_through_the_station() {
     assert_eq!(last[1], false, "disarmed at the end: {last}");
     // The vehicle's own account: it flew, landed and disarmed; the station says the same.
     assert_eq!((v["landed"].as_bool(), v["crashed"].as_bool()), (Some(true), Some(false)), "{v}");
-    assert_eq!(s["ended"], "the vehicle landed and disarmed");
     let texts: Vec<&str> =
         seen["statustext"].as_array().unwrap().iter().map(|t| t.as_str().unwrap()).collect();
     assert!(texts.iter().any(|t| t.contains("mode: Hover")), "{texts:?}");
@@ -148,13 +207,13 @@ fn pymavlink_sees_and_commands_the_virtual_vehicle_through_the_station() {
     // north = -y_W, east = -x_W, down = -z_W; roll as ours, pitch and yaw negated (docs/mavlink.md).
     let out = Command::new(env!("CARGO_BIN_EXE_sim-host"))
         .arg("export")
-        .arg(dir.join("station").join("station.log"))
+        .arg(log)
         .arg("--csv")
         .arg(dir.join("csv"))
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let rows = csv(&dir.join("csv").join("station_downlink_telemetry.csv"));
+    let rows = csv(&dir.join("csv").join(telemetry_csv));
     let f = |r: &HashMap<String, String>, k: &str| -> f64 {
         r.get(k).unwrap_or_else(|| panic!("no column {k}: {:?}", r.keys())).parse().unwrap()
     };
@@ -203,10 +262,8 @@ fn pymavlink_sees_and_commands_the_virtual_vehicle_through_the_station() {
     assert!(matched[0] * 10 >= rows.len() * 9, "{matched:?} of {}", rows.len());
     assert!(worst[0] <= 1e-4 && worst[1] <= 1e-4, "{worst:?}");
     // What the station counted: the commands and parameter requests it carried, nothing unparsable.
-    let m = &s["mavlink"];
     assert_eq!(m["udp"]["unparsable"], 0, "{m}");
     assert!(m["commands"].as_u64().unwrap() >= 3, "{m}");
     assert!(m["param_requests"].as_u64().unwrap() > n as u64, "{m}");
     assert!(m["local"].as_str().unwrap().starts_with("127.0.0.1:"), "{m}");
-    std::fs::remove_dir_all(&dir).ok();
 }

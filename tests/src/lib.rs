@@ -136,6 +136,7 @@ pub fn fly_logged(
         log: true,
         frames,
         serve: None,
+        mavlink: None,
     };
     if let Err(e) = sim_host::fly::fly(&opts, |_, _| {}) {
         panic!("the flight failed: {e:#}");

@@ -67,6 +67,7 @@ fn without_the_flow_camera_it_still_flies_and_says_so() {
         log: false,
         frames: sim_host::flightlog::FramePolicy::Drop,
         serve: None,
+        mavlink: None,
     };
     let r = sim_host::fly::fly(&opts, |_, _| {}).unwrap();
     assert!(!r.stats.flow_camera && r.stats.flow.pairs == 0);

@@ -105,6 +105,12 @@ pub(crate) struct FlyArgs {
     /// the vehicle.
     #[arg(long, requires = "serve_link")]
     pub(crate) no_key: bool,
+    /// Fly in real time for a MAVLink 2 ground control station at `udp:HOST:PORT` (QGroundControl listens on
+    /// udp:127.0.0.1:14550), which commands the vehicle through the in-process station in place of the
+    /// mission's script: arm, take-off, land, the custom modes, the kill, the parameters (docs/mavlink.md).
+    /// The run ends when the vehicle has landed and disarmed after flying, at --duration, or on Ctrl-C.
+    #[arg(long, value_name = "udp:HOST:PORT", conflicts_with = "serve_link")]
+    pub(crate) mavlink: Option<String>,
 }
 pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
     use sim_host::fly::{FlyOptions, fly};
@@ -150,7 +156,18 @@ pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
         None => sim_host::sil::FcChoice::Sil,
         Some(elf) => sim_host::sil::FcChoice::Qemu(sim_host::fil::QemuOptions::new(elf)),
     };
+    let mavlink = match &a.mavlink {
+        None => None,
+        Some(spec) => {
+            let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+            let flag = stop.clone();
+            ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::Relaxed))
+                .context("installing the Ctrl-C handler")?;
+            Some(sim_host::fly::MavlinkFly { spec: spec.clone(), stop })
+        }
+    };
     let opts = FlyOptions {
+        mavlink,
         scenario,
         seed,
         duration_s: a.duration,

@@ -8,16 +8,14 @@
 //! station's time (`LogRecord::Station`), the clock sync's mapping to the vehicle's clock after each answer
 //! it accepted, and the camera frames if asked (at their capture time on the vehicle's clock). The log is
 //! finished (with its end record) however the run ends, an error included.
-mod mavlink;
-
-use self::mavlink::MavlinkSide;
-pub use self::mavlink::MavlinkStats;
 use crate::downward::GroundFlow;
 use crate::flightlog::{
     CameraFrame, CameraId, FrameEncoding, FramePolicy, LogRecord, LogWriter, StationEvent,
 };
 use crate::imageio::{FrameImages, GrayImage, RgbImage};
 use crate::link_key::{LinkReceiver, LinkSecurity, Received};
+pub use crate::mavlink_endpoint::MavlinkStats;
+use crate::mavlink_endpoint::{GroundRequest, MavlinkEndpoint};
 use crate::scenario::Scenario;
 use crate::vision::GroundVision;
 use anyhow::{Context, Result, bail};
@@ -25,7 +23,6 @@ use control_core::FlightMode;
 use ground_station::clock::ClockSync;
 use ground_station::console::{ConsoleView, KeyAction};
 use ground_station::link::{Link, LinkSpec};
-use ground_station::mavlink_bridge::Request;
 use ground_station::operator::{Operator, Script, command_name};
 use ground_station::source::{SourceWant, now_unix_us};
 use ground_station::stream::Frame;
@@ -386,7 +383,7 @@ fn station_loop(
     let down = opts.down.as_deref().map(|d| camera_thread(d, down_want, "down"));
     let (mut forward_watch, mut down_watch) = (StallWatch::default(), StallWatch::default());
 
-    let mut mav = opts.mavlink.as_deref().map(MavlinkSide::open).transpose()?;
+    let mut mav = opts.mavlink.as_deref().map(MavlinkEndpoint::open).transpose()?;
     let mut vision = GroundVision::new(scenario);
     let forward_camera = scenario.forward_camera_model();
     let mut flow = down.as_ref().map(|_| GroundFlow::new(scenario));
@@ -446,8 +443,7 @@ fn station_loop(
             break format!("the duration ({} s) ran out", opts.duration_s);
         }
         if let Some(m) = mav.as_mut() {
-            let out = m.bridge.tick(start.elapsed().as_micros() as u64);
-            m.send(out);
+            m.tick(start.elapsed().as_micros() as u64);
         }
         let session = security.lock().map(|sec| sec.ready()).unwrap_or(false);
         if session && !had_session {
@@ -485,6 +481,9 @@ fn station_loop(
         while let Ok((m, at)) = down_rx.try_recv() {
             last_down = t;
             rec.event(StationEvent::Received { station_time_us: at, message: m })?;
+            if let Some(mv) = mav.as_mut() {
+                mv.downlink(&m);
+            }
             if let Some(tm) = m.telemetry() {
                 stats.telemetry += 1;
                 let mode = format!("{:?}", tm.mode);
@@ -492,10 +491,6 @@ fn station_loop(
                     stats.modes.push((t, mode));
                 }
                 was_airborne |= tm.mode.airborne();
-                if let Some(mv) = mav.as_mut() {
-                    let out = mv.bridge.telemetry(&tm);
-                    mv.send(out);
-                }
                 telemetry = Some(tm);
                 telemetry_at = t;
                 continue;
@@ -514,20 +509,9 @@ fn station_loop(
                         rec.event(StationEvent::Clock { station_time_us: at, vehicle_time_us: v, bound_us })?;
                     }
                 }
-                Downlink::CommandAck(r) => {
-                    stats.command_acks.push(format!("{t:.2} s: {r:?}"));
-                    if let Some(mv) = mav.as_mut() {
-                        let out = mv.bridge.command_result(r);
-                        mv.send(out);
-                    }
-                }
+                Downlink::CommandAck(r) => stats.command_acks.push(format!("{t:.2} s: {r:?}")),
                 Downlink::LinkStatus(l) => stats.vehicle_link = Some(l),
                 Downlink::Param(r) => {
-                    if let Some(mv) = mav.as_mut() {
-                        mv.params.answered(r.id);
-                        let out = mv.bridge.param_reply(r);
-                        mv.send(out);
-                    }
                     if opts.compact && r.id == control_core::params::ParamId::TelemetryEvery {
                         stats.compact_announced = Some(r.outcome == control_core::ParamOutcome::Ok);
                     }
@@ -592,37 +576,29 @@ fn station_loop(
         // operator holds one), a kill as the console's does.
         if let Some(mv) = mav.as_mut() {
             let now_us = start.elapsed().as_micros() as u64;
-            for (from, m) in mv.udp.receive().context("--mavlink: the ground control station's socket")? {
-                let (requests, replies) = mv.bridge.take(from, &m, now_us);
-                mv.send(replies);
-                for r in requests {
-                    match r {
-                        Request::Kill => {
-                            operator.kill();
-                            stats.operator_commands.push((t, "kill (mavlink)".into()));
-                            mv.stats.commands += 1;
+            if let Ok(c) = decoder_counts.lock() {
+                mv.set_link_errors(c.0.errors() as u64);
+            }
+            for r in mv.poll(now_us)? {
+                match r {
+                    GroundRequest::Kill => {
+                        operator.kill();
+                        stats.operator_commands.push((t, "kill (mavlink)".into()));
+                    }
+                    GroundRequest::Command(c) => {
+                        operator.command(c);
+                        stats.operator_commands.push((t, format!("{} (mavlink)", command_name(Some(c)))));
+                        // At once: the operator holds one command.
+                        if let Some(c) = operator.tick(now_us, telemetry.map(|tm| tm.mode)) {
+                            send(&Uplink::Command(c), &mut writer, rec)?;
+                            stats.uplink_commands += 1;
                         }
-                        Request::Command(c) => {
-                            operator.command(c);
-                            stats.operator_commands.push((t, format!("{} (mavlink)", command_name(Some(c)))));
-                            mv.stats.commands += 1;
-                            if let Some(c) = operator.tick(now_us, telemetry.map(|tm| tm.mode)) {
-                                send(&Uplink::Command(c), &mut writer, rec)?;
-                                stats.uplink_commands += 1;
-                            }
-                        }
-                        Request::ParamGet(_) | Request::ParamSet(..) => mv.params.push(r),
+                    }
+                    GroundRequest::Uplink(m) => {
+                        send(&m, &mut writer, rec)?;
+                        stats.uplink_other += 1;
                     }
                 }
-            }
-            // Parameter requests one at a time (the vehicle answers one a step).
-            if let Some(m) = mv.params.next(now_us) {
-                send(&m, &mut writer, rec)?;
-                mv.stats.param_requests += 1;
-                stats.uplink_other += 1;
-            }
-            if let Ok(c) = decoder_counts.lock() {
-                mv.bridge.set_link_errors(c.0.errors() as u64);
             }
         }
         // The operator's script runs on the station's monotonic clock (a step of the system clock must not
@@ -757,7 +733,7 @@ fn station_loop(
             .map_or(f64::NAN, |v| *v as f64 * 1e-3)
     };
     stats.frame_to_uplink_ms = [q(0.5), q(0.95)];
-    stats.mavlink = mav.map(MavlinkSide::finish);
+    stats.mavlink = mav.map(MavlinkEndpoint::finish);
     Ok(stats)
 }
 
