@@ -198,7 +198,12 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
         files.push(path);
     }
     if opts.plots {
-        files.extend(write_plots(&opts.out, sil.records(), sil.flow_records())?);
+        files.extend(write_plots(
+            &opts.out,
+            sil.records(),
+            sil.flow_records(),
+            opts.scenario.flight_params().trajectory.ground_height_m as f64,
+        )?);
     }
     let mut summary = summary_json(opts, &stats, wall, &files);
     if let Some(ss) = serve_stats {
@@ -387,9 +392,10 @@ pub fn write_flow_csv(path: &Path, records: &[FlowRecord]) -> Result<()> {
 
 /// The setpoint as the plots draw it: what the controller used while it flew (the airborne modes), nothing
 /// before the take-off or after the disarm (the reference then is not flown), and the height clipped at the
-/// floor (a landing drives its reference below the pad to find the touchdown, docs/architecture.md; the
-/// vehicle cannot follow it there).
-pub fn plotted_setpoint(records: &[Record], k: usize, vel: bool) -> Vec<f64> {
+/// floor, `floor_z` being the centre of mass's height when the vehicle stands on it (`ground_height_m`; a
+/// landing drives its reference below it to find the touchdown, docs/architecture.md, and the vehicle cannot
+/// follow it there).
+pub fn plotted_setpoint(records: &[Record], k: usize, vel: bool, floor_z: f64) -> Vec<f64> {
     records
         .iter()
         .map(|r| {
@@ -398,7 +404,7 @@ pub fn plotted_setpoint(records: &[Record], k: usize, vel: bool) -> Vec<f64> {
             }
             match (vel, k) {
                 (true, _) => r.des_v[k] as f64,
-                (false, 2) => (r.des_p[2] as f64).max(0.0),
+                (false, 2) => (r.des_p[2] as f64).max(floor_z),
                 (false, _) => r.des_p[k] as f64,
             }
         })
@@ -407,7 +413,12 @@ pub fn plotted_setpoint(records: &[Record], k: usize, vel: bool) -> Vec<f64> {
 
 /// Writes x, y, z and the horizontal velocities over time (truth, estimate, desired, and the optical flow's
 /// velocity), like the paper's figures 7-11 with the truth beside every estimate.
-pub fn write_plots(dir: &Path, records: &[Record], flow: &[FlowRecord]) -> Result<Vec<PathBuf>> {
+pub fn write_plots(
+    dir: &Path,
+    records: &[Record],
+    flow: &[FlowRecord],
+    floor_z: f64,
+) -> Result<Vec<PathBuf>> {
     let t: Vec<f64> = records.iter().map(|r| r.t_s).collect();
     let col = |f: &dyn Fn(&Record) -> f64| records.iter().map(f).collect::<Vec<f64>>();
     let track = records
@@ -431,7 +442,7 @@ pub fn write_plots(dir: &Path, records: &[Record], flow: &[FlowRecord]) -> Resul
     for (file, title, ylabel, k, vel) in panels {
         let truth = col(&|r| if vel { r.true_v[k] } else { r.true_p[k] });
         let est = col(&|r| (if vel { r.est_v[k] } else { r.est_p[k] }) as f64);
-        let des = plotted_setpoint(records, k, vel);
+        let des = plotted_setpoint(records, k, vel, floor_z);
         let flow_v: Vec<f64> = if vel { flow.iter().map(|r| r.measured[k]).collect() } else { Vec::new() };
         let mut series = vec![
             Series { name: "desired", color: [110, 110, 110], xs: &t, ys: &des, dashed: true },
@@ -492,7 +503,8 @@ mod tests {
     #[test]
     fn the_plotted_height_setpoint_stops_at_the_floor_and_at_the_disarm() {
         // The landing's reference goes below the pad (-0.12 m) to find the touchdown; after the disarm the
-        // reference is the mission height again (0.80 m), and before the take-off nothing is flown.
+        // reference is the mission height again (0.80 m), and before the take-off nothing is flown. The floor
+        // for the centre of mass is the landed height, 0.06 m.
         let rs = [
             record(0.0, FlightMode::Disarmed, 0.8),
             record(0.5, FlightMode::Armed, 0.8),
@@ -501,13 +513,13 @@ mod tests {
             record(2.5, FlightMode::Landing, -0.12),
             record(3.0, FlightMode::Disarmed, 0.8),
         ];
-        let z = plotted_setpoint(&rs, 2, false);
+        let z = plotted_setpoint(&rs, 2, false, 0.06);
         assert!(z[0].is_nan() && z[1].is_nan() && z[5].is_nan(), "{z:?}");
-        assert_eq!(&z[2..5], &[0.1f32 as f64, 0.05f32 as f64, 0.0]);
-        let y = plotted_setpoint(&rs, 1, false);
+        assert_eq!(&z[2..5], &[0.1f32 as f64, 0.06, 0.06]);
+        let y = plotted_setpoint(&rs, 1, false, 0.06);
         assert_eq!(y[3], 1.3f32 as f64);
         assert!(y[5].is_nan());
-        let vz = plotted_setpoint(&rs, 2, true);
+        let vz = plotted_setpoint(&rs, 2, true, 0.06);
         assert_eq!(vz[4], -0.3f32 as f64, "velocities are not clipped");
         assert!(vz[0].is_nan());
     }
