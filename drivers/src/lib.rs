@@ -6,6 +6,7 @@
 //! - [`blctrl`]: the I2C brushless speed controllers of the paper's platform ("BL-Ctrl" protocol: one
 //!   setpoint byte written to each motor's address).
 //! - [`dshot`]: DShot150/300/600 ESCs on timer channels (frames, the DMA burst buffer, throttle, arming).
+//! - [`crsf`]: a CRSF (ExpressLRS, TBS Crossfire) RC receiver on a UART: channels, switches, its failsafe.
 //! - [`SensorRotation`]: how a chip is mounted relative to the body frame (FLU).
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
@@ -15,6 +16,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod blctrl;
+pub mod crsf;
 pub mod dshot;
 pub mod hmc5883l;
 pub mod mpu6000;
