@@ -28,6 +28,7 @@
 
 pub mod fil;
 pub mod flow;
+pub mod param_store;
 pub mod radio;
 pub mod telemetry;
 
