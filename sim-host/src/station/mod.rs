@@ -8,26 +8,31 @@
 //! station's time (`LogRecord::Station`), the clock sync's mapping to the vehicle's clock after each answer
 //! it accepted, and the camera frames if asked (at their capture time on the vehicle's clock). The log is
 //! finished (with its end record) however the run ends, an error included.
+mod cameras;
+mod stats;
+
 use crate::downward::GroundFlow;
 use crate::flightlog::{
     CameraFrame, CameraId, FrameEncoding, FramePolicy, LogRecord, LogWriter, StationEvent,
 };
-use crate::imageio::{FrameImages, GrayImage, RgbImage};
+use crate::imageio::{FrameImages, GrayImage};
 use crate::link_key::{LinkReceiver, LinkSecurity, Received};
 pub use crate::mavlink_endpoint::MavlinkStats;
 use crate::mavlink_endpoint::{GroundRequest, MavlinkEndpoint};
 use crate::scenario::Scenario;
 use crate::vision::GroundVision;
 use anyhow::{Context, Result, bail};
+pub use cameras::{CAMERA_STALL_S, forward_image, measure_forward};
+use cameras::{StallWatch, camera_thread};
 use control_core::FlightMode;
 use ground_station::clock::ClockSync;
 use ground_station::console::{ConsoleView, KeyAction};
 use ground_station::link::{Link, LinkSpec};
 use ground_station::operator::{Operator, Script, command_name};
 use ground_station::source::{SourceWant, now_unix_us};
-use ground_station::stream::Frame;
 use ground_station::v4l2::CaptureCounters;
-use protocol::{Downlink, FlowMeasurement, PackedFlow, PackedVision, Telemetry, Uplink, VisionMeasurement};
+use protocol::{Downlink, FlowMeasurement, PackedFlow, PackedVision, Telemetry, Uplink};
+pub use stats::StationStats;
 use std::io::ErrorKind;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, mpsc};
@@ -78,81 +83,6 @@ pub struct StationOptions {
     pub mavlink: Option<String>,
 }
 
-/// What the station counted.
-#[derive(Clone, Debug, Default, serde::Serialize)]
-pub struct StationStats {
-    /// Seconds the station ran.
-    pub seconds: f64,
-    /// Forward frames received, measured (the line found), without a line, and dropped before the clock was
-    /// known.
-    pub forward_frames: u64,
-    /// Times a camera stream stalled (no frame for [`CAMERA_STALL_S`] after it had sent one): forward, down.
-    pub camera_stalls: [u64; 2],
-    /// What each camera (forward, down) delivered and lost at the source: a live camera's buffers, frames
-    /// the kernel numbered but the station never got, buffers flagged damaged, buffers that did not decode.
-    pub camera_counters: [CaptureCounters; 2],
-    /// Forward frames in which the line was found.
-    pub forward_measured: u64,
-    /// Forward frames that arrived before the vehicle's clock was known (not sent).
-    pub frames_before_clock: u64,
-    /// Downward frames received.
-    pub down_frames: u64,
-    /// Flow measurements sent.
-    pub flow_sent: u64,
-    /// Uplink messages sent, by kind.
-    pub uplink_vision: u64,
-    /// Flow messages.
-    pub uplink_flow: u64,
-    /// Commands (with retries).
-    pub uplink_commands: u64,
-    /// Heartbeats and time-sync requests.
-    pub uplink_other: u64,
-    /// Telemetry messages received.
-    pub telemetry: u64,
-    /// Command acknowledgements received, with the refusals' reasons.
-    pub command_acks: Vec<String>,
-    /// Time-sync answers received.
-    pub time_sync_answers: u64,
-    /// Of those, refused by the clock sync: arriving before their request left, or slower than its limit.
-    pub time_sync_refused: [u64; 2],
-    /// The clock sync's error bound at the end (ms).
-    pub clock_bound_ms: Option<f64>,
-    /// The vehicle's modes as the telemetry reported them, with the station's time (s).
-    pub modes: Vec<(f64, String)>,
-    /// Bytes sent and received on the radio.
-    pub link_bytes: [u64; 2],
-    /// The radio's decoder: frames refused by reason.
-    pub link_decoder: protocol::frame::DecodeCounters,
-    /// How the radio is secured: `hmac-sha256-48`, or `none (development)`.
-    pub link_security: String,
-    /// The downlink's authentication: sessions, frames accepted and refused by reason (docs/security.md).
-    pub auth: protocol::auth::AuthCounters,
-    /// Hellos sent (keyed link): until the vehicle answered, and again after a session went quiet.
-    pub hellos_sent: u64,
-    /// New handshakes started because no authentic downlink came for [`REHELLO_AFTER_S`] (a vehicle that
-    /// rebooted, or whose session a replayed hello replaced while it was disarmed).
-    pub rehellos: u64,
-    /// The vehicle's own report of its radio, the last received (`Downlink::LinkStatus`, once a second):
-    /// whether it authenticates, arm commands it refused, and its uplink's counters by reason.
-    pub vehicle_link: Option<protocol::LinkStatus>,
-    /// Median and 95th percentile of the time from a forward frame's arrival to its measurement leaving on
-    /// the radio (ms).
-    pub frame_to_uplink_ms: [f64; 2],
-    /// The operator's own commands (the console's keys), with the station's time (s).
-    pub operator_commands: Vec<(f64, String)>,
-    /// The compact mode: whether the vehicle took the telemetry period (`None` without the mode), and the
-    /// frames not measured by its choice (forward, down).
-    pub compact_announced: Option<bool>,
-    /// Frames left out by the compact mode (forward, down).
-    pub compact_skipped: [u64; 2],
-    /// Why the station stopped.
-    pub ended: String,
-    /// Records in the station's flight log.
-    pub log_records: u64,
-    /// The MAVLink ground control station's endpoint, when there is one: what the bridge took and sent.
-    pub mavlink: Option<MavlinkStats>,
-}
-
 /// The station's flight log.
 struct Recorder {
     log: LogWriter,
@@ -169,48 +99,6 @@ impl Recorder {
     }
 }
 
-/// A camera frame as it arrived: the frame, its arrival time on the station's clock, and the source's
-/// counters then.
-type Arrival = (Frame, u64, CaptureCounters);
-
-/// A camera opened and read on its own thread (a camera that does not answer does not hold up the radio):
-/// frames with their arrival time; the error that ended it.
-fn camera_thread(
-    spec: &str,
-    want: SourceWant,
-    what: &'static str,
-) -> mpsc::Receiver<Result<Arrival, String>> {
-    let (tx, rx) = mpsc::sync_channel(8);
-    let spec = spec.to_string();
-    std::thread::spawn(move || {
-        let mut reader = match ground_station::source::open(&spec, want) {
-            Ok(r) => r,
-            Err(e) => {
-                let _closed = tx.send(Err(format!("--{what}: {e}")));
-                return;
-            }
-        };
-        loop {
-            match reader.next_frame() {
-                Ok(Some(f)) => {
-                    if tx.send(Ok((f, now_unix_us(), reader.counters()))).is_err() {
-                        return;
-                    }
-                }
-                Ok(None) => {
-                    let _closed = tx.send(Err(format!("the {what} stream ended")));
-                    return;
-                }
-                Err(e) => {
-                    let _closed = tx.send(Err(format!("the {what} stream: {e}")));
-                    return;
-                }
-            }
-        }
-    });
-    rx
-}
-
 /// What the operator sees and does while the station runs: a progress line, or the console.
 pub trait StationUi {
     /// The station's state, about ten times a second.
@@ -221,56 +109,11 @@ pub trait StationUi {
     }
 }
 
-/// A forward camera's frame as the image the vision measures: RGB, of the calibration's size.
-pub fn forward_image(f: Frame, camera: &vision_core::CameraModel) -> Result<RgbImage> {
-    if f.channels != 3 {
-        bail!("the forward stream sent a {}-channel frame; RGB expected", f.channels);
-    }
-    ground_station::calib::check_size(camera, f.width, f.height)
-        .map_err(|e| anyhow::anyhow!("the forward camera: {e}"))?;
-    Ok(RgbImage { width: f.width, height: f.height, data: f.data })
-}
-
-/// The measurement of a forward frame captured at `vehicle_us` on the vehicle's clock (the line's edges, or
-/// none), as it goes up the radio.
-pub fn measure_forward(
-    vision: &mut GroundVision,
-    img: &RgbImage,
-    vehicle_us: u64,
-    frame_seq: u32,
-) -> VisionMeasurement {
-    VisionMeasurement { capture_time_us: vehicle_us, frame_seq, observation: vision.detect(img).ok() }
-}
-
 /// A keyed session with no authentic downlink for this long is taken as dead and a new hello sent (s): the
 /// vehicle sends telemetry at 10-25 Hz and its link status every second, so 3 s of nothing is a session the
 /// vehicle no longer shares (or a radio that is down, which the new hello does not harm: the vehicle takes it
 /// once its own side has been quiet for `protocol::auth::HELLO_QUIET_US`).
 pub const REHELLO_AFTER_S: f64 = 3.0;
-
-/// A camera silent for this long is stalled (counted once per stall; 15 frames at 30 Hz).
-pub const CAMERA_STALL_S: f64 = 0.5;
-
-/// Stalls of one camera: gaps between frames longer than [`CAMERA_STALL_S`].
-#[derive(Clone, Copy, Debug, Default)]
-struct StallWatch {
-    last_frame_s: Option<f64>,
-    stalled: bool,
-}
-
-impl StallWatch {
-    fn frame(&mut self, t: f64) {
-        self.last_frame_s = Some(t);
-        self.stalled = false;
-    }
-
-    /// Whether a new stall began at `t` (the camera had sent a frame before).
-    fn check(&mut self, t: f64) -> bool {
-        let begun = !self.stalled && self.last_frame_s.is_some_and(|l| t - l > CAMERA_STALL_S);
-        self.stalled |= begun;
-        begun
-    }
-}
 
 /// Runs the station until the vehicle has landed and disarmed after flying, the duration ran out, `stop`
 /// is set, or the vehicle went away. The flight log is written however it ends: on an error, the error says
@@ -735,24 +578,4 @@ fn station_loop(
     stats.frame_to_uplink_ms = [q(0.5), q(0.95)];
     stats.mavlink = mav.map(MavlinkEndpoint::finish);
     Ok(stats)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_camera_gap_longer_than_the_stall_limit_counts_once_until_frames_come_back() {
-        let mut w = StallWatch::default();
-        // Nothing yet: a camera that never sent is not stalled (its error or the clock says why).
-        assert!(!w.check(10.0));
-        w.frame(1.0);
-        assert!(!w.check(1.0 + CAMERA_STALL_S * 0.9));
-        assert!(w.check(1.0 + CAMERA_STALL_S * 1.1));
-        assert!(!w.check(1.0 + CAMERA_STALL_S * 3.0), "one stall, counted once");
-        assert!(w.stalled);
-        w.frame(5.0);
-        assert!(!w.stalled);
-        assert!(w.check(5.0 + CAMERA_STALL_S * 1.1), "a second stall");
-    }
 }
