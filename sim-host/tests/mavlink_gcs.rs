@@ -14,6 +14,13 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+/// The tests here fly in real time: one at a time, so that they do not slow each other down.
+static REAL_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    REAL_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 /// The Python to run the peer with, or why there is none.
 fn python() -> Option<String> {
     let py = std::env::var("WLQ_PYTHON").unwrap_or_else(|_| "python3".into());
@@ -48,6 +55,7 @@ fn wrap(a: f64) -> f64 {
 #[test]
 fn pymavlink_sees_and_commands_the_virtual_vehicle_through_the_station() {
     let Some(py) = python() else { return };
+    let _serial = one_at_a_time();
     let dir = std::env::temp_dir().join(format!("mavlink-gcs-{}", std::process::id()));
     std::fs::remove_dir_all(&dir).ok();
     std::fs::create_dir_all(&dir).unwrap();
@@ -101,6 +109,7 @@ fn pymavlink_sees_and_commands_the_virtual_vehicle_through_the_station() {
 #[test]
 fn pymavlink_flies_the_simulated_vehicle_of_fly_mavlink() {
     let Some(py) = python() else { return };
+    let _serial = one_at_a_time();
     let dir = std::env::temp_dir().join(format!("mavlink-fly-{}", std::process::id()));
     std::fs::remove_dir_all(&dir).ok();
     std::fs::create_dir_all(&dir).unwrap();

@@ -230,14 +230,17 @@ pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
             "not landed".to_string()
         }
     );
+    let mm = |v: [f64; 3]| {
+        if v.iter().all(|x| x.is_finite()) {
+            format!("x {:.1} mm, y {:.1} mm, z {:.1} mm", 1e3 * v[0], 1e3 * v[1], 1e3 * v[2])
+        } else {
+            "none (no tracking phase)".to_string()
+        }
+    };
     eprintln!(
-        "tracking RMS error x {:.1} mm, y {:.1} mm, z {:.1} mm; estimate RMS error x {:.1} mm, y {:.1} mm, z {:.1} mm; max tilt {:.2} deg",
-        1e3 * st.rms_error_m[0],
-        1e3 * st.rms_error_m[1],
-        1e3 * st.rms_error_m[2],
-        1e3 * st.estimate_rms_error_m[0],
-        1e3 * st.estimate_rms_error_m[1],
-        1e3 * st.estimate_rms_error_m[2],
+        "tracking RMS error {}; estimate RMS error {}; max tilt {:.2} deg",
+        mm(st.rms_error_m),
+        mm(st.estimate_rms_error_m),
         st.max_tilt_deg
     );
     if let Some(c) = &st.fc_cost {
