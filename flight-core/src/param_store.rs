@@ -69,9 +69,10 @@ pub enum SlotProblem {
 pub enum StoreError {
     /// The set to save is not valid (the field that failed).
     Invalid(&'static str),
-    /// The set does not fit [`MAX_BODY`] or the slot.
+    /// The set does not fit [`MAX_BODY`].
     TooLarge,
-    /// The slots are not whole erase sectors within the flash, or the flash's write size does not divide 4.
+    /// The slots are not whole erase sectors within the flash, are smaller than a header and [`MAX_BODY`], or
+    /// the flash's write size does not divide 4.
     Layout,
     /// The flash refused an erase or a write.
     Flash,
@@ -112,6 +113,7 @@ impl<F: NorFlash> ParamStore<F> {
         let fits = |o: u32| o.is_multiple_of(erase) && o as usize + slot_len as usize <= flash.capacity();
         let apart = slots[0].abs_diff(slots[1]) >= slot_len;
         if !slot_len.is_multiple_of(erase)
+            || (slot_len as usize) < HEADER_LEN + MAX_BODY
             || !fits(slots[0])
             || !fits(slots[1])
             || !apart
@@ -142,7 +144,8 @@ impl<F: NorFlash> ParamStore<F> {
         if head[8..16] != SCHEMA_KEY {
             return Err(SlotProblem::Schema);
         }
-        if len > MAX_BODY || HEADER_LEN + len > self.slot_len as usize {
+        // A slot holds a header and MAX_BODY at least (checked in `new`).
+        if len > MAX_BODY {
             return Err(SlotProblem::Length);
         }
         let mut body = [0u8; MAX_BODY];
@@ -167,7 +170,9 @@ impl<F: NorFlash> ParamStore<F> {
         let b = self.read_slot(1);
         let problems = [a.as_ref().err().copied(), b.as_ref().err().copied()];
         let best = match (a, b) {
-            (Ok(x), Ok(y)) => Some(if y.1 > x.1 { (1, y) } else { (0, x) }),
+            // Sequence numbers compare as serial numbers (RFC 1982): the newer is ahead by less than half
+            // the range, so the count may wrap; a tie (never written so) goes to slot 0.
+            (Ok(x), Ok(y)) => Some(if (y.1.wrapping_sub(x.1) as i32) > 0 { (1, y) } else { (0, x) }),
             (Ok(x), Err(_)) => Some((0, x)),
             (Err(_), Ok(y)) => Some((1, y)),
             (Err(_), Err(_)) => None,
@@ -183,10 +188,8 @@ impl<F: NorFlash> ParamStore<F> {
     pub fn save(&mut self, p: &FlightParams) -> Result<u32, StoreError> {
         p.validate().map_err(|e| StoreError::Invalid(e.field))?;
         let mut body = [0u8; MAX_BODY];
+        // A set larger than MAX_BODY does not serialise into it: the slot, at least a header and MAX_BODY, holds it.
         let len = postcard::to_slice(p, &mut body).map_err(|_| StoreError::TooLarge)?.len();
-        if HEADER_LEN + len > self.slot_len as usize {
-            return Err(StoreError::TooLarge);
-        }
         let (_, report) = self.load();
         let (target, sequence) = match report.slot {
             Some(k) => (1 - k, report.sequence.wrapping_add(1)),

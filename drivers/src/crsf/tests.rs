@@ -257,3 +257,53 @@ fn ten_million_random_and_mutated_bytes_never_panic_and_every_byte_is_counted() 
     assert_eq!(rx.rc(n), RcState::Ok(sample_channels()));
     assert!(c.frames > 10_000 && c.bad_crc > 10_000 && c.skipped > 100_000, "{c:?}");
 }
+
+#[test]
+fn a_pause_on_the_line_ends_a_cut_frame_and_frames_of_other_kinds_are_counted_apart() {
+    let ch = sample_channels();
+    let f = rc_frame(&ch);
+    let mut rx = CrsfReceiver::new();
+    // Half a frame, a pause, then a whole frame: found at once, the half counted as skipped.
+    feed(&mut rx, &f[..10], 1_000);
+    feed(&mut rx, &f, 1_000 + FRAME_GAP_US);
+    let c = rx.counters();
+    assert_eq!((c.rc_frames, c.skipped, c.bad_crc, c.bad_length), (1, 10, 0, 0), "{c:?}");
+    // Without the pause the half frame takes the whole one's first bytes as its own.
+    let mut rx = CrsfReceiver::new();
+    feed(&mut rx, &f[..10], 1_000);
+    feed(&mut rx, &f, 1_000 + FRAME_GAP_US - 1);
+    assert!(rx.counters().bad_crc + rx.counters().bad_length >= 1, "{:?}", rx.counters());
+    // A battery frame (a kind the crate decodes), a frame of a kind it does not know, and an RC frame with a
+    // payload too short for its kind: frames with a good CRC, counted by kind.
+    let mut rx = CrsfReceiver::new();
+    feed(&mut rx, &frame(0x08, &[0, 120, 0, 15, 0, 0, 40, 80]), 0);
+    feed(&mut rx, &frame(0x7F, &[1, 2, 3]), 0);
+    feed(&mut rx, &frame(0x16, &[1, 2, 3, 4, 5]), 0);
+    let c = rx.counters();
+    assert_eq!((c.frames, c.other_frames, c.bad_payload, c.rc_frames), (3, 2, 1, 0), "{c:?}");
+    assert_eq!(rx.rc(0), RcState::NoReceiver);
+}
+
+#[test]
+fn switch_thresholds_and_stick_scaling_at_exact_values() {
+    use SwitchPosition::*;
+    // Exactly at a threshold: the middle position (the ends start strictly beyond).
+    assert_eq!(channel_us(us_to_channel(1300)), 1300);
+    assert_eq!(SwitchPosition::of(us_to_channel(1300), None), Mid);
+    assert_eq!(SwitchPosition::of(us_to_channel(1700), None), Mid);
+    // Exactly at the hysteresis' edge: the end position is left.
+    assert_eq!(SwitchPosition::of(us_to_channel(1350), Some(Low)), Mid);
+    assert_eq!(SwitchPosition::of(us_to_channel(1650), Some(High)), Mid);
+    assert_eq!(SwitchPosition::of(us_to_channel(1250), Some(Mid)), Mid);
+    assert_eq!(SwitchPosition::of(us_to_channel(1750), Some(Mid)), Mid);
+    // Sticks in between their ends.
+    let map = ChannelMap::default();
+    let mut ch = [CHANNEL_MID; 16];
+    ch[0] = CHANNEL_MID + 273; // a third of the way to full right
+    ch[3] = CHANNEL_MID - 546; // two thirds to full left
+    ch[2] = 1000;
+    let i = RcDecoder::default().decode(&ch, &map);
+    assert!((i.roll - 1.0 / 3.0).abs() < 1e-6, "{}", i.roll);
+    assert!((i.yaw + 2.0 / 3.0).abs() < 1e-6, "{}", i.yaw);
+    assert!((i.throttle - 828.0 / 1639.0).abs() < 1e-6, "{}", i.throttle);
+}

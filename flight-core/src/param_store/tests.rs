@@ -201,3 +201,82 @@ fn damage_and_other_layouts_are_named_and_the_other_slot_is_used() {
         Err(StoreError::Layout)
     ));
 }
+
+/// Writes a whole slot by hand: the header for `len`, `sequence` and `body`, with its CRC and commit word.
+fn write_slot(mem: &mut [u8], base: usize, sequence: u32, body: &[u8], len_field: u16) {
+    let mut head = [0u8; HEADER_LEN];
+    head[0..4].copy_from_slice(&MAGIC);
+    head[4..6].copy_from_slice(&STORE_FORMAT.to_le_bytes());
+    head[6..8].copy_from_slice(&len_field.to_le_bytes());
+    head[8..16].copy_from_slice(&SCHEMA_KEY);
+    head[16..20].copy_from_slice(&sequence.to_le_bytes());
+    let mut d = CRC32.digest();
+    d.update(&head[0..20]);
+    d.update(body);
+    head[20..24].copy_from_slice(&d.finalize().to_le_bytes());
+    head[24..28].copy_from_slice(&COMMIT.to_le_bytes());
+    mem[base..base + HEADER_LEN].copy_from_slice(&head);
+    mem[base + HEADER_LEN..base + HEADER_LEN + body.len()].copy_from_slice(body);
+}
+
+#[test]
+fn sequence_numbers_wrap_lengths_are_bounded_and_slots_must_hold_a_set() {
+    let mut buf = [0u8; MAX_BODY];
+    let a = postcard::to_slice(&set_a(), &mut buf).unwrap().to_vec();
+    let b = postcard::to_slice(&set_b(), &mut buf).unwrap().to_vec();
+    let slot1 = 2 * SECTOR;
+    // Slot 0 at the last sequence number, slot 1 after the wrap: slot 1 is the newer.
+    let mut flash = SimFlash::new();
+    write_slot(&mut flash.mem, 0, u32::MAX, &a, a.len() as u16);
+    write_slot(&mut flash.mem, slot1, 0, &b, b.len() as u16);
+    let mut s = store(flash);
+    let (p, r) = s.load();
+    assert_eq!((p, r.slot, r.sequence), (set_b(), Some(1), 0));
+    // And the next save goes to slot 0 with sequence 1.
+    assert_eq!(s.save(&set_a()), Ok(1));
+    assert_eq!(s.load().1.slot, Some(0));
+    // The other way round: slot 0 newer.
+    let mut flash = SimFlash::new();
+    write_slot(&mut flash.mem, 0, 5, &a, a.len() as u16);
+    write_slot(&mut flash.mem, slot1, 4, &b, b.len() as u16);
+    assert_eq!(store(flash).load().1.slot, Some(0));
+    // A tie goes to slot 0.
+    let mut flash = SimFlash::new();
+    write_slot(&mut flash.mem, 0, 7, &a, a.len() as u16);
+    write_slot(&mut flash.mem, slot1, 7, &b, b.len() as u16);
+    assert_eq!(
+        store(flash).load(),
+        (set_a(), LoadReport { slot: Some(0), sequence: 7, problems: [None, None] })
+    );
+    // A length beyond MAX_BODY is named; MAX_BODY itself is a length, whose CRC then fails.
+    let mut flash = SimFlash::new();
+    write_slot(&mut flash.mem, 0, 1, &a, (MAX_BODY + 1) as u16);
+    write_slot(&mut flash.mem, slot1, 1, &a, MAX_BODY as u16);
+    assert_eq!(store(flash).load().1.problems, [Some(SlotProblem::Length), Some(SlotProblem::Crc)]);
+    // A slot smaller than a header and MAX_BODY is refused.
+    struct Small;
+    impl ErrorType for Small {
+        type Error = PowerCut;
+    }
+    impl ReadNorFlash for Small {
+        const READ_SIZE: usize = 1;
+        fn read(&mut self, _: u32, _: &mut [u8]) -> Result<(), PowerCut> {
+            Ok(())
+        }
+        fn capacity(&self) -> usize {
+            8192
+        }
+    }
+    impl NorFlash for Small {
+        const WRITE_SIZE: usize = 1;
+        const ERASE_SIZE: usize = 512;
+        fn erase(&mut self, _: u32, _: u32) -> Result<(), PowerCut> {
+            Ok(())
+        }
+        fn write(&mut self, _: u32, _: &[u8]) -> Result<(), PowerCut> {
+            Ok(())
+        }
+    }
+    assert!(matches!(ParamStore::new(Small, [0, 1024], 1024), Err(StoreError::Layout)));
+    assert!(ParamStore::new(Small, [0, 1536], 1536).is_ok());
+}
