@@ -109,10 +109,9 @@ pub fn frd_from_flu(v: Vec3) -> [f32; 3] {
 /// `R_NED_FRD = Rx(pi) R_NB Rx(pi)`, whose quaternion is `R_NB`'s with y and z negated.
 pub fn frd_in_ned(q_wb: Quat) -> Quat {
     let r_nb = geometry::frames::WORLD_FROM_NAV.transpose().mul_mat(&q_wb.to_mat3());
-    let q = Quat::from_mat3(&r_nb).normalized();
-    // One sign for the whole quaternion: w >= 0.
-    let s = if q.w < 0.0 { -1.0 } else { 1.0 };
-    Quat::new(s * q.w, s * q.x, -s * q.y, -s * q.z)
+    // `from_mat3` gives the sign with w >= 0; negating y and z keeps it.
+    let q = Quat::from_mat3(&r_nb);
+    Quat::new(q.w, q.x, -q.y, -q.z)
 }
 
 /// Roll, pitch and yaw (rad, ZYX) of the FRD body in NED: ours with pitch and yaw negated.

@@ -307,6 +307,8 @@ fn parameters_by_short_name_and_index() {
     );
     let (req, out) = b.take(255, &set("Bogus", 1.0), 0);
     assert!(req.is_empty() && matches!(out[..], [MavMessage::STATUSTEXT(_)]));
+    assert_eq!(b.counters().unknown_params, 3);
+    assert_eq!(b.counters().taken, 7, "a list, four reads and two sets, each taken");
     // The vehicle's reply: PARAM_VALUE with the name, index and count; a refusal adds a STATUSTEXT.
     let out =
         b.param_reply(ParamReply { id: ParamId::TrajectorySpeed, value: 0.2, outcome: ParamOutcome::Ok });
@@ -334,7 +336,9 @@ fn parameter_requests_go_one_at_a_time_with_retries() {
     }
     q.push(Request::Kill);
     assert_eq!(q.len(), 2, "duplicates and non-parameter requests are not queued");
+    assert!(!q.is_empty());
     assert_eq!(q.next(0), Some(Uplink::ParamGet(ParamId::TrajectoryYd)));
+    assert_eq!(q.len(), 2, "one in flight, one waiting");
     assert_eq!(q.next(1000), None, "waits for the answer");
     q.answered(ParamId::TrajectoryZd);
     assert_eq!(q.next(2000), None, "another parameter's answer does not count");
@@ -351,4 +355,89 @@ fn parameter_requests_go_one_at_a_time_with_retries() {
     assert_eq!(q.next(10_000_000), Some(Uplink::ParamSet { id: ParamId::TrajectorySpeed, value: 0.2 }));
     q.answered(ParamId::TrajectorySpeed);
     assert!(q.is_empty());
+}
+
+#[test]
+fn status_names_the_sensors_and_what_a_failsafe_took() {
+    use mav::MavSysStatusSensor as S;
+    let status = |b: &mut Bridge| match b.tick(u64::MAX / 2).pop() {
+        Some(MavMessage::SYS_STATUS(s)) => s,
+        other => panic!("{other:?}"),
+    };
+    let mut b = Bridge::new();
+    let s = status(&mut b);
+    for sensor in [
+        S::MAV_SYS_STATUS_SENSOR_3D_GYRO,
+        S::MAV_SYS_STATUS_SENSOR_3D_ACCEL,
+        S::MAV_SYS_STATUS_SENSOR_VISION_POSITION,
+        S::MAV_SYS_STATUS_SENSOR_OPTICAL_FLOW,
+        S::MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION,
+        S::MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL,
+        S::MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL,
+        S::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS,
+    ] {
+        assert!(s.onboard_control_sensors_present.contains(sensor), "{sensor:?}");
+        assert!(s.onboard_control_sensors_health.contains(sensor), "{sensor:?}");
+    }
+    // No battery monitoring: the "not sent" values.
+    assert_eq!((s.voltage_battery, s.current_battery, s.battery_remaining), (u16::MAX, -1, -1));
+    for (f, lost) in [
+        (Failsafe::VisionLost, S::MAV_SYS_STATUS_SENSOR_VISION_POSITION),
+        (Failsafe::ImuFault, S::MAV_SYS_STATUS_SENSOR_3D_GYRO | S::MAV_SYS_STATUS_SENSOR_3D_ACCEL),
+        (Failsafe::EstimatorFault, S::MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION),
+    ] {
+        let mut b = Bridge::new();
+        let mut t = telemetry(FlightMode::Hover, Attitude::default(), Vec3::ZERO);
+        t.failsafe = Some(f);
+        b.telemetry(&t);
+        let s = status(&mut b);
+        assert_eq!(s.onboard_control_sensors_present - s.onboard_control_sensors_health, lost, "{f:?}");
+    }
+    // A failsafe on the ground is not critical: standby.
+    let mut b = Bridge::new();
+    let mut t = telemetry(FlightMode::Disarmed, Attitude::default(), Vec3::ZERO);
+    t.failsafe = Some(Failsafe::VisionLost);
+    b.telemetry(&t);
+    let MavMessage::HEARTBEAT(h) = b.heartbeat() else { panic!() };
+    assert_eq!(h.system_status, mav::MavState::MAV_STATE_STANDBY);
+}
+
+#[test]
+fn requests_for_another_system_are_ignored_and_odd_arm_values_unsupported() {
+    use mav::MavCmd as C;
+    let mut b = Bridge::new();
+    let other = [
+        MavMessage::PARAM_REQUEST_LIST(mav::PARAM_REQUEST_LIST_DATA {
+            target_system: 9,
+            target_component: 1,
+        }),
+        MavMessage::PARAM_REQUEST_READ(mav::PARAM_REQUEST_READ_DATA {
+            param_index: 0,
+            target_system: 9,
+            target_component: 1,
+            param_id: name16(""),
+        }),
+        MavMessage::PARAM_SET(mav::PARAM_SET_DATA {
+            param_value: 0.2,
+            target_system: 9,
+            target_component: 1,
+            param_id: name16("TrajectorySpeed"),
+            param_type: mav::MavParamType::MAV_PARAM_TYPE_REAL32,
+        }),
+    ];
+    for m in &other {
+        assert_eq!(b.take(255, m, 0), (vec![], vec![]), "{m:?}");
+    }
+    assert_eq!((b.counters().ignored, b.counters().taken), (3, 0));
+    // Broadcast (target 0) is ours.
+    let list = MavMessage::PARAM_REQUEST_LIST(mav::PARAM_REQUEST_LIST_DATA {
+        target_system: 0,
+        target_component: 0,
+    });
+    assert_eq!(b.take(255, &list, 0).0.len(), ParamId::ALL.len());
+    // ARM_DISARM with param1 neither 0 nor 1 is not a command, whatever param2 says.
+    let (req, out) = b.take(255, &long(C::MAV_CMD_COMPONENT_ARM_DISARM, 0.5, FORCE_DISARM_MAGIC), 0);
+    assert!(req.is_empty());
+    assert_eq!(acks(&out), vec![(C::MAV_CMD_COMPONENT_ARM_DISARM, mav::MavResult::MAV_RESULT_UNSUPPORTED)]);
+    assert_eq!(b.counters().taken, 2);
 }
