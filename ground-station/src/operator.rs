@@ -126,7 +126,8 @@ pub struct Operator {
     timed_next: usize,
     /// The script has ended (a kill, or the operator took over with a command of their own).
     script_stopped: bool,
-    manual: Option<Command>,
+    /// The operator's own commands, sent one a tick in their order.
+    manual: std::collections::VecDeque<Command>,
     kill_left: u8,
     kill_sent_at: Option<u64>,
     sent: [bool; 4],
@@ -144,7 +145,7 @@ impl Operator {
             timed: None,
             timed_next: 0,
             script_stopped: false,
-            manual: None,
+            manual: std::collections::VecDeque::new(),
             kill_left: 0,
             kill_sent_at: None,
             sent: [false; 4],
@@ -170,12 +171,13 @@ impl Operator {
         self.kill_left = KILL_REPEATS;
         self.kill_sent_at = None;
         self.script_stopped = true;
-        self.manual = None;
+        self.manual.clear();
     }
 
-    /// The operator's own command, sent at the next tick; the script ends (the operator has taken over).
+    /// The operator's own command, sent at the next tick (after the ones given before it, one a tick); the
+    /// script ends (the operator has taken over).
     pub fn command(&mut self, c: Command) {
-        self.manual = Some(c);
+        self.manual.push_back(c);
         self.script_stopped = true;
     }
 
@@ -213,7 +215,7 @@ impl Operator {
             self.kill_sent_at = Some(t_us);
             return Some(Command::Disarm);
         }
-        if let Some(c) = self.manual.take() {
+        if let Some(c) = self.manual.pop_front() {
             return Some(c);
         }
         if self.script_stopped {
@@ -330,6 +332,16 @@ mod tests {
         op.command(Command::Arm);
         assert_eq!(op.tick(s(11.0), Some(FlightMode::Disarmed)), Some(Command::Arm));
         assert_eq!(op.tick(s(13.0), Some(FlightMode::Disarmed)), None);
+    }
+
+    #[test]
+    fn commands_given_together_all_go_one_a_tick_in_their_order() {
+        let mut op = Operator::with_script(Script::Manual);
+        op.command(Command::Arm);
+        op.command(Command::TakeOff);
+        assert_eq!(op.tick(1, Some(FlightMode::Disarmed)), Some(Command::Arm));
+        assert_eq!(op.tick(2, Some(FlightMode::Armed)), Some(Command::TakeOff));
+        assert_eq!(op.tick(3, Some(FlightMode::TakeOff)), None);
     }
 
     #[test]

@@ -904,13 +904,7 @@ impl Sil {
                     for r in requests {
                         match r {
                             GroundRequest::Kill => self.operator.kill(),
-                            GroundRequest::Command(c) => {
-                                self.operator.command(c);
-                                // At once: the operator holds one command.
-                                if let Some(c) = self.operator.tick(self.t_us, mode) {
-                                    self.send(self.t_us + lat, Uplink::Command(c));
-                                }
-                            }
+                            GroundRequest::Command(c) => self.operator.command(c),
                             GroundRequest::Uplink(m) => self.send(self.t_us + lat, m),
                         }
                     }

@@ -415,8 +415,8 @@ fn station_loop(
                 KeyAction::Quit => quit = true,
             }
         }
-        // The ground control station's commands and parameter requests: each command goes up at once (the
-        // operator holds one), a kill as the console's does.
+        // The ground control station's commands and parameter requests: commands and kills as the console's
+        // keys give them (the operator's tick below sends them).
         if let Some(mv) = mav.as_mut() {
             let now_us = start.elapsed().as_micros() as u64;
             if let Ok(c) = decoder_counts.lock() {
@@ -431,11 +431,6 @@ fn station_loop(
                     GroundRequest::Command(c) => {
                         operator.command(c);
                         stats.operator_commands.push((t, format!("{} (mavlink)", command_name(Some(c)))));
-                        // At once: the operator holds one command.
-                        if let Some(c) = operator.tick(now_us, telemetry.map(|tm| tm.mode)) {
-                            send(&Uplink::Command(c), &mut writer, rec)?;
-                            stats.uplink_commands += 1;
-                        }
                     }
                     GroundRequest::Uplink(m) => {
                         send(&m, &mut writer, rec)?;
