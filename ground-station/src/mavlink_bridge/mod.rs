@@ -119,17 +119,11 @@ pub fn euler_ned(q_wb: Quat) -> (f32, f32, f32) {
     frd_in_ned(q_wb).to_mat3().to_euler_zyx()
 }
 
-fn text(s: &str) -> mavlink::types::CharArray<50> {
-    let mut b = [0u8; 50];
-    let n = s.len().min(50);
+/// `s` in a fixed-length MAVLink string: NUL-padded, cut at `N` bytes.
+fn char_array<const N: usize>(s: &str) -> mavlink::types::CharArray<N> {
+    let mut b = [0u8; N];
+    let n = s.len().min(N);
     b[..n].copy_from_slice(&s.as_bytes()[..n]);
-    b.into()
-}
-
-fn param_name(id: ParamId) -> mavlink::types::CharArray<16> {
-    let mut b = [0u8; 16];
-    let s = id.short_name().as_bytes();
-    b[..s.len()].copy_from_slice(s);
     b.into()
 }
 
@@ -347,7 +341,7 @@ impl Bridge {
             param_value: r.value,
             param_count: ParamId::ALL.len() as u16,
             param_index: r.id as u16,
-            param_id: param_name(r.id),
+            param_id: char_array(r.id.short_name()),
             param_type: mav::MavParamType::MAV_PARAM_TYPE_REAL32,
         }));
         out
@@ -533,7 +527,7 @@ impl ParamQueue {
 }
 
 fn statustext(severity: mav::MavSeverity, s: &str) -> MavMessage {
-    MavMessage::STATUSTEXT(mav::STATUSTEXT_DATA { severity, text: text(s) })
+    MavMessage::STATUSTEXT(mav::STATUSTEXT_DATA { severity, text: char_array(s) })
 }
 
 #[cfg(test)]
