@@ -13,7 +13,7 @@
 //! flow undistort their points with. Every refusal names the file and the field; a calibration of another
 //! size than the stream's is refused with both sizes ([`check_size`]).
 use std::path::Path;
-use vision_core::{CameraModel, Distortion};
+use vision_core::{CameraModel, Distortion, ToneCurve};
 use yaml_rust2::{Yaml, YamlLoader};
 
 /// Which format a file was read as.
@@ -38,6 +38,9 @@ pub struct Calibration {
     pub rate_hz: Option<f64>,
     /// The format it was read as.
     pub format: CalibFormat,
+    /// The camera's tone curve: the optional key `tone_curve` (`srgb` or `linear`; neither format has one,
+    /// and webcams deliver sRGB, the default).
+    pub tone_curve: ToneCurve,
 }
 
 /// Reads a calibration file (the format is recognised from its keys).
@@ -148,6 +151,7 @@ fn calibration(
     coefficients: &[f64],
     rate_hz: Option<f64>,
     format: CalibFormat,
+    tone_curve: ToneCurve,
 ) -> Result<Calibration, String> {
     let camera = checked(CameraModel {
         width,
@@ -164,7 +168,18 @@ fn calibration(
         distortion: [0, 1, 2, 3, 4].map(|i| coefficients.get(i).copied().unwrap_or(0.0)),
         rate_hz,
         format,
+        tone_curve,
     })
+}
+
+/// The optional `tone_curve` key.
+fn tone_curve(y: &Yaml, field: &str) -> Result<ToneCurve, String> {
+    match y {
+        Yaml::BadValue => Ok(ToneCurve::Srgb),
+        Yaml::String(s) if s == "srgb" => Ok(ToneCurve::Srgb),
+        Yaml::String(s) if s == "linear" => Ok(ToneCurve::Linear),
+        other => Err(format!("`{field}`: {other:?} is not a tone curve (srgb or linear)")),
+    }
 }
 
 fn checked(camera: CameraModel) -> Result<CameraModel, String> {
@@ -213,7 +228,16 @@ fn camera_info(doc: &Yaml) -> Result<Calibration, String> {
     } else {
         distortion(&model, &d, "distortion_coefficients.data")?
     };
-    calibration((width, height), [k[0], k[4], k[2], k[5]], distortion, &d, None, CalibFormat::CameraInfo)
+    let tone = tone_curve(&doc["tone_curve"], "tone_curve")?;
+    calibration(
+        (width, height),
+        [k[0], k[4], k[2], k[5]],
+        distortion,
+        &d,
+        None,
+        CalibFormat::CameraInfo,
+        tone,
+    )
 }
 
 fn kalibr(cam: &Yaml, prefix: &str) -> Result<Calibration, String> {
@@ -248,7 +272,8 @@ fn kalibr(cam: &Yaml, prefix: &str) -> Result<Calibration, String> {
         Yaml::BadValue => None,
         y => Some(number(y, &f("rate_hz"))?),
     };
-    calibration((width, height), [k[0], k[1], k[2], k[3]], distortion, &d, rate_hz, CalibFormat::Kalibr)
+    let tone = tone_curve(&cam["tone_curve"], &f("tone_curve"))?;
+    calibration((width, height), [k[0], k[1], k[2], k[3]], distortion, &d, rate_hz, CalibFormat::Kalibr, tone)
 }
 
 #[cfg(test)]
@@ -314,6 +339,11 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
         let naive = geometry::Vec2::new((px.x - m.cx) / m.fx, (px.y - m.cy) / m.fy);
         assert!(n.norm() > 1.05 * naive.norm(), "{n:?} {naive:?}");
         assert!((m.normalized_to_pixel(n) - px).norm() < 1e-2);
+        // No tone curve in the file: sRGB, as webcams deliver; a file may say `linear`.
+        assert_eq!(c.tone_curve, ToneCurve::Srgb);
+        let linear = parse(&format!("{CAMERA_INFO}tone_curve: linear\n")).unwrap();
+        assert_eq!(linear.tone_curve, ToneCurve::Linear);
+        assert_eq!(parse(&format!("{CAMERA_INFO}tone_curve: srgb\n")).unwrap().tone_curve, ToneCurve::Srgb);
     }
 
     #[test]
@@ -337,6 +367,9 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
                      resolution: [752, 480]\n";
         let c = parse(chain).unwrap();
         assert_eq!((c.camera.width, c.camera.fx, c.camera.distortion.k1), (752, 458.6, -0.28));
+        assert_eq!(c.tone_curve, ToneCurve::Srgb);
+        let c = parse(&format!("{chain}  tone_curve: linear\n")).unwrap();
+        assert_eq!(c.tone_curve, ToneCurve::Linear);
     }
 
     #[test]
@@ -378,6 +411,15 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
                 "pinhole only",
             ),
             ("cam0:\n  intrinsics: [458, 457, 367, 248]\n", "`cam0.resolution` is missing"),
+            (
+                "cam0:\n  intrinsics: [458, 457, 367, 248]\n  resolution: [752, 480]\n  tone_curve: gamma22\n",
+                "`cam0.tone_curve`: String(\"gamma22\") is not a tone curve (srgb or linear)",
+            ),
+            (
+                "image_width: 640\nimage_height: 480\ncamera_matrix: {data: [300,0,320,0,300,240,0,0,1]}\n\
+                 tone_curve: 2.2\n",
+                "`tone_curve`",
+            ),
         ];
         for (text, want) in cases {
             let e = parse(text).expect_err(text);

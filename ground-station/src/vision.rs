@@ -136,6 +136,13 @@ impl LineVision {
         &self.camera
     }
 
+    /// The camera's tone curve (from its calibration; sRGB unless set), which the detector undoes before it
+    /// measures edges.
+    pub fn with_tone_curve(mut self, curve: vision_core::ToneCurve) -> Self {
+        self.detector.tone_curve = curve;
+        self
+    }
+
     /// The detector's tuning.
     pub fn detector_params(&self) -> &DetectorParams {
         &self.detector

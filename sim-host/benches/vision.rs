@@ -47,9 +47,23 @@ fn bench(c: &mut Criterion) {
         b.iter(|| solve_pose(black_box(&obs), &cam, &target, &mount, imu, &pp))
     });
     g.finish();
-    c.bench_function("render_forward_640x480", |b| {
+    // The renderer side by side: the default (sRGB) sensor, a linear one, and 1.5 px of optical blur (the
+    // blur's cost as a ratio to the plain frame).
+    let mut g = c.benchmark_group("render_forward_640x480");
+    g.bench_function("srgb", |b| {
         b.iter(|| renderer.render(black_box(&r_wc), Vec3::new(1.15, 1.45, 0.8), &settings))
     });
+    let mut linear_scenario = scenario.clone();
+    linear_scenario.forward_camera.response = vision_core::ToneCurve::Linear;
+    let linear = ForwardRenderer::new(&linear_scenario).expect("renderer");
+    g.bench_function("linear", |b| {
+        b.iter(|| linear.render(black_box(&r_wc), Vec3::new(1.15, 1.45, 0.8), &settings))
+    });
+    let blurred = sim_host::render::RenderSettings { blur_sigma_px: 1.5, ..settings };
+    g.bench_function("srgb_blur_1.5px", |b| {
+        b.iter(|| renderer.render(black_box(&r_wc), Vec3::new(1.15, 1.45, 0.8), &blurred))
+    });
+    g.finish();
 }
 
 criterion_group!(benches, bench);

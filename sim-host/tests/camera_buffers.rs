@@ -120,10 +120,14 @@ fn the_line_measured_on_decoded_webcam_buffers_matches_the_frames_own() {
     }
     assert!(measured >= 20, "{measured} frames with the line");
     // Each corner comes from two fitted edges of hundreds of points: compression and chroma subsampling move
-    // it by a fraction of a pixel (measured: MJPEG at quality 85 median 0.12 px, max 0.37 px; YUYV median
-    // 0.03 px, max 0.16 px). Chroma sited otherwise than JFIF says (the top-left pixel of each pair instead
-    // of their average) moves every corner by about 0.45 px to the right: that would fail here.
-    assert!(worst.iter().all(|&e| e < 0.5), "{worst:?}");
+    // it by a fraction of a pixel. Measured on the sRGB camera (the encoder's errors are in encoded values,
+    // and decoding to linear light multiplies them by up to 2 in the bright wall): MJPEG at quality 85
+    // median 0.16 px, max 0.58 px; YUYV median 0.09 px, max 0.28 px (on a linear camera it was 0.12 / 0.37
+    // and 0.03 / 0.16 px). Chroma sited otherwise than JFIF says (the top-left pixel of each pair instead of
+    // their average) moves every corner by about 0.45 px to the right: the medians would fail here.
+    let median = |v: &[f32]| v[v.len() / 2];
+    assert!(all.iter().all(|v| median(v) < 0.25), "medians {:?}", all.each_ref().map(|v| median(v)));
+    assert!(worst[0] < 0.7 && worst[1] < 0.7 && worst[2] < 0.35, "{worst:?}");
     // Stripping the tables changes nothing: the standard ones are what the encoder wrote.
     assert_eq!(worst[0], worst[1]);
 }

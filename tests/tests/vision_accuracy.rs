@@ -12,6 +12,8 @@ use vision_core::AttitudeSource;
 #[derive(Default)]
 struct Errors {
     xyz: [Vec<f64>; 3],
+    /// Per coordinate: whether the error was within the reported 2-sigma bound.
+    covered: [Vec<bool>; 3],
     yaw_deg: Vec<f64>,
     /// |x error| of frames with an end outside the image where x was reported.
     x_one_end: Vec<f64>,
@@ -35,6 +37,13 @@ impl Errors {
                 1e3 * p
             );
         }
+        let cov = self.coverage();
+        eprintln!(
+            "  2-sigma coverage x {:.1} %  y {:.1} %  z {:.1} %",
+            100.0 * cov[0],
+            100.0 * cov[1],
+            100.0 * cov[2]
+        );
         let (m, p) = median_p95(&self.yaw_deg);
         eprintln!("  yaw: median {m:.3} deg  p95 {p:.3} deg");
         let max1 = self.x_one_end.iter().fold(0.0f64, |a, b| a.max(b.abs()));
@@ -43,6 +52,11 @@ impl Errors {
             self.x_one_end.len(),
             1e3 * max1
         );
+    }
+
+    /// Per coordinate, the fraction of errors within the reported 2-sigma bound.
+    fn coverage(&self) -> [f64; 3] {
+        self.covered.each_ref().map(|c| c.iter().filter(|&&b| b).count() as f64 / c.len().max(1) as f64)
     }
 
     /// The bounds: median <= 1 cm and 95th percentile <= 3 cm for every observed coordinate.
@@ -94,8 +108,11 @@ fn evaluate_with(
             continue;
         };
         let err: Vec3 = r.pose.camera_position_m - f.position;
+        let std = r.pose.position_std_m;
+        let within = |k: usize| (err[k] as f64).abs() <= 2.0 * std[k] as f64;
         if r.pose.x_observed {
             e.xyz[0].push(err.x as f64);
+            e.covered[0].push(within(0));
             if r.pose.real_corners < 4 {
                 e.x_one_end.push(err.x as f64);
             }
@@ -104,6 +121,8 @@ fn evaluate_with(
         }
         e.xyz[1].push(err.y as f64);
         e.xyz[2].push(err.z as f64);
+        e.covered[1].push(within(1));
+        e.covered[2].push(within(2));
         e.yaw_deg.push(to_deg(geometry::wrap_pi(r.pose.attitude.yaw - f.attitude.yaw)) as f64);
     }
     e
@@ -129,6 +148,24 @@ fn imu_aided_pose_over_the_envelope() {
         "the envelope must include many frames with an end out of view"
     );
     e.assert_bounds("IMU-aided");
+}
+
+#[test]
+fn the_srgb_tone_curve_is_undone_before_the_edges_are_measured() {
+    // The paper scenario's camera delivers sRGB, as webcams do. The detector decodes it before its area
+    // method; measured on these 240 frames: x / y / z median 2.10 / 1.87 / 6.33 mm, p95 6.91 / 7.37 /
+    // 17.93 mm, 2-sigma coverage 91.5 / 94.2 / 96.2 %. Measured as if the values were linear light (the
+    // defect), y 7.31 / 14.86 mm, z p95 48.95 mm and y coverage 27.9 %.
+    let frames = envelope_frames(240, 2024);
+    let s = Scenario::paper();
+    assert_eq!(s.forward_camera.response, vision_core::ToneCurve::Srgb);
+    let e = evaluate_with(&s, &frames, 0.0, imu);
+    e.report("IMU-aided, sRGB camera, 240 frames");
+    assert_eq!(e.no_pose, 0);
+    e.assert_bounds("sRGB");
+    for (k, c) in e.coverage().iter().enumerate() {
+        assert!(*c >= 0.9, "{}: 2-sigma coverage {c}", ["x", "y", "z"][k]);
+    }
 }
 
 #[test]

@@ -3,6 +3,7 @@
 //! - [`image`]: borrowed RGB8 and grey views with a stride.
 //! - [`camera`]: pinhole intrinsics with Brown-Conrady distortion.
 //! - [`target`]: the painted line's rectangle and its corners `A, B, C, D` (paper Fig. 1).
+//! - [`tone`]: the camera's tone curve (sRGB or linear), undone before edges are measured.
 //! - [`detect`]: red-line segmentation, sub-pixel edges and robust line fits, giving a [`LineObservation`].
 //! - [`pose`]: vanishing points and least-squares pose (paper eq. 1-14), image-only or IMU-aided, refined by
 //!   minimising the reprojection error, with the planar ambiguity resolved by gravity.
@@ -22,6 +23,7 @@ pub mod image;
 pub mod observation;
 pub mod pose;
 pub mod target;
+pub mod tone;
 
 pub use camera::{CameraModel, Distortion};
 pub use detect::{DetectionDiagnostics, DetectorParams, DetectorWorkspace, NoTargetReason, detect_line};
@@ -31,3 +33,4 @@ pub use pose::{
     AttitudeSource, CameraMount, PoseError, PoseParams, PoseSolution, TranslationMethod, solve_pose,
 };
 pub use target::{Corner, Edge, LineTarget};
+pub use tone::ToneCurve;

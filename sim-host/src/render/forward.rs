@@ -4,9 +4,11 @@
 //! Image formation, per pixel: the ray through the pixel centre hits the wall or the floor; the surface
 //! albedo (times its texture) is lit by the scene's gain and gradient; the line's paint covers the pixel by
 //! its exact area (the line's image is a convex polygon, clipped to the near plane), so edges are
-//! box-filter anti-aliased; optional Gaussian blur; then exposure, Gaussian sensor noise and 8-bit
-//! quantisation. Everything is a pure function of the scene, the pose and the frame's seed.
+//! box-filter anti-aliased; exposure; optional Gaussian blur; then the sensor (`super::sensor`): clipping per
+//! channel at full scale, the tone curve (sRGB by default), Gaussian noise and 8-bit quantisation.
+//! Everything is a pure function of the scene, the pose and the frame's seed.
 use super::polygon::{Poly, row_coverage};
+use super::sensor::{Response, gaussian_blur_rgb};
 use super::texture::{Texture, TextureKind};
 use crate::imageio::RgbImage;
 use crate::rng::{NormalTable, splitmix64};
@@ -95,6 +97,8 @@ pub struct ForwardRenderer {
     defaults: RenderSettings,
     /// The lens, when the camera's distortion is not zero (`super::lens`).
     lens: Option<Box<super::lens::Lens>>,
+    /// Clipping, tone curve and quantisation (`super::sensor`).
+    response: Response,
 }
 
 /// Standard-normal noise is stored as `round(32 n)` in an `i8` (clipped at +-3.97 sigma).
@@ -246,6 +250,7 @@ impl ForwardRenderer {
             ),
             noise: noise_buffer(3 * c.width_px as usize * c.height_px as usize),
             lens,
+            response: Response::new(c.response),
             defaults: RenderSettings {
                 light_gain: sc.light_gain,
                 light_gradient_per_m: sc.light_gradient_per_m,
@@ -256,6 +261,11 @@ impl ForwardRenderer {
         })
     }
 
+    /// Image width and height (px).
+    pub(super) fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
     /// The scenario's render settings (with seed 0).
     pub fn default_settings(&self) -> RenderSettings {
         self.defaults
@@ -264,19 +274,34 @@ impl ForwardRenderer {
     /// Renders the view of a camera with world-from-camera rotation `r_wc` and centre `center` (world).
     pub fn render(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings) -> RgbImage {
         let mut img = RgbImage::new(self.width, self.height);
-        if let Some(lens) = &self.lens {
-            // Through the lens: the resampled pinhole image, then blur, noise and quantisation here.
-            let mut linear = lens.render_linear(r_wc, center, settings);
-            if settings.blur_sigma_px > 0.0 {
-                gaussian_blur_rgb(&mut linear, self.width, self.height, settings.blur_sigma_px);
-            }
-            let sigma = settings.noise_sigma as f32 / NOISE_SCALE;
-            let noise = self.noise_block(settings.seed);
-            for ((o, p), n) in img.data.iter_mut().zip(&linear).zip(noise) {
-                *o = quantise(p + sigma * *n as f32);
-            }
+        if self.lens.is_none() && settings.blur_sigma_px <= 0.0 {
+            self.rows(r_wc, center, settings, Rows::Encoded(&mut img.data));
             return img;
         }
+        // Through the lens (the resampled pinhole image) or the optics' blur: the whole frame's linear
+        // values first, then the sensor.
+        let mut linear = match &self.lens {
+            Some(lens) => lens.render_linear(r_wc, center, settings),
+            None => self.linear_image(r_wc, center, settings),
+        };
+        if settings.blur_sigma_px > 0.0 {
+            gaussian_blur_rgb(&mut linear, self.width, self.height, settings.blur_sigma_px);
+        }
+        let sigma = settings.noise_sigma as f32 / NOISE_SCALE;
+        self.response.finish(&linear, self.noise_block(settings.seed), sigma, &mut img.data);
+        img
+    }
+
+    /// The light on each pixel (3 values per pixel, interleaved, on the 0-255 scale of the sensor's full
+    /// scale), before blur, clipping, tone curve, noise and quantisation.
+    pub(super) fn linear_image(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings) -> Vec<f32> {
+        let mut linear = vec![0.0f32; 3 * self.width * self.height];
+        self.rows(r_wc, center, settings, Rows::Linear(&mut linear));
+        linear
+    }
+
+    /// Renders every row into `out`: the sensor's 8-bit output, or the linear values.
+    fn rows(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings, out: Rows<'_>) {
         let rw = to64(r_wc);
         let c = [center.x as f64, center.y as f64, center.z as f64];
         let polys: Vec<(Poly, [f32; 3], i64, i64)> = self
@@ -289,8 +314,6 @@ impl ForwardRenderer {
             })
             .collect();
         let (w, h) = (self.width, self.height);
-        let blur = settings.blur_sigma_px > 0.0;
-        let mut linear = if blur { vec![0.0f32; 3 * w * h] } else { Vec::new() };
         let scale = 255.0 * self.exposure;
         let (g0, [gx, gz]) = (settings.light_gain as f32, settings.light_gradient_per_m.map(|v| v as f32));
         let (lcx, lcz) = (self.line_center[0] as f32, self.line_center[2] as f32);
@@ -416,48 +439,28 @@ impl ForwardRenderer {
                     *gm = g * m;
                 }
             }
-            // Pass 3: shading, per channel (planar, vectorisable); without blur, noise and quantisation in the
-            // same pass.
+            // Pass 3: shading, per channel (planar, vectorisable); for the sensor's output, its response
+            // (clipping, tone curve, noise, quantisation) on the row.
             for (ch, plane) in planes.iter_mut().enumerate() {
                 let (wall_a, floor_a) = (self.wall_albedo[ch], self.floor_albedo[ch]);
-                let nz = &noise[(ch * h + v) * w..(ch * h + v + 1) * w];
-                let q = &mut qplanes[ch];
-                match (painted_row, blur) {
-                    (true, true) => {
-                        for (((((p, &k), &pt), &wl), &g), &m) in
-                            plane.iter_mut().zip(&cov_sum).zip(&paint[ch]).zip(&on_wall).zip(&gain).zip(&tex)
-                        {
-                            let base = floor_a + wl * (wall_a - floor_a);
-                            *p = g * (pt + (1.0 - k.min(1.0)) * base * m);
-                        }
+                if painted_row {
+                    for (((((p, &k), &pt), &wl), &g), &m) in
+                        plane.iter_mut().zip(&cov_sum).zip(&paint[ch]).zip(&on_wall).zip(&gain).zip(&tex)
+                    {
+                        let base = floor_a + wl * (wall_a - floor_a);
+                        *p = g * (pt + (1.0 - k.min(1.0)) * base * m);
                     }
-                    (false, true) => {
-                        for ((p, &wl), &gm) in plane.iter_mut().zip(&on_wall).zip(&lit) {
-                            *p = (floor_a + wl * (wall_a - floor_a)) * gm;
-                        }
-                    }
-                    (true, false) => {
-                        for ((((((o, &k), &pt), &wl), &g), &m), &n) in q
-                            .iter_mut()
-                            .zip(&cov_sum)
-                            .zip(&paint[ch])
-                            .zip(&on_wall)
-                            .zip(&gain)
-                            .zip(&tex)
-                            .zip(nz)
-                        {
-                            let base = floor_a + wl * (wall_a - floor_a);
-                            *o = quantise(g * (pt + (1.0 - k.min(1.0)) * base * m) + sigma * n as f32);
-                        }
-                    }
-                    (false, false) => {
-                        for (((o, &wl), &gm), &n) in q.iter_mut().zip(&on_wall).zip(&lit).zip(nz) {
-                            *o = quantise((floor_a + wl * (wall_a - floor_a)) * gm + sigma * n as f32);
-                        }
+                } else {
+                    for ((p, &wl), &gm) in plane.iter_mut().zip(&on_wall).zip(&lit) {
+                        *p = (floor_a + wl * (wall_a - floor_a)) * gm;
                     }
                 }
+                if px_row.is_some() {
+                    let nz = &noise[(ch * h + v) * w..(ch * h + v + 1) * w];
+                    self.response.finish(plane, nz, sigma, &mut qplanes[ch]);
+                }
             }
-            // Pass 4: interleave (or keep the linear values for the blur).
+            // Pass 4: interleave.
             if let Some(out) = lin_row {
                 for (((o, r), g), b) in
                     out.chunks_exact_mut(3).zip(&planes[0]).zip(&planes[1]).zip(&planes[2])
@@ -477,32 +480,24 @@ impl ForwardRenderer {
         // Bands of rows on the thread pool (a flight's frames are rendered one after another, so the pool's
         // threads are otherwise idle; in a sweep the runs already fill them and the bands run inline).
         let band = ROW_BAND.min(h.max(1));
-        if blur {
-            linear.par_chunks_mut(3 * w * band).enumerate().for_each_init(
+        match out {
+            Rows::Linear(linear) => linear.par_chunks_mut(3 * w * band).enumerate().for_each_init(
                 || RowScratch::new(w),
                 |sc, (b, rows)| {
                     for (k, row) in rows.chunks_exact_mut(3 * w).enumerate() {
                         render_row(b * band + k, sc, None, Some(row));
                     }
                 },
-            );
-        } else {
-            img.data.par_chunks_mut(3 * w * band).enumerate().for_each_init(
+            ),
+            Rows::Encoded(data) => data.par_chunks_mut(3 * w * band).enumerate().for_each_init(
                 || RowScratch::new(w),
                 |sc, (b, rows)| {
                     for (k, row) in rows.chunks_exact_mut(3 * w).enumerate() {
                         render_row(b * band + k, sc, Some(row), None);
                     }
                 },
-            );
+            ),
         }
-        if blur {
-            gaussian_blur_rgb(&mut linear, w, h, settings.blur_sigma_px);
-            for ((o, p), n) in img.data.iter_mut().zip(&linear).zip(noise) {
-                *o = quantise(p + sigma * *n as f32);
-            }
-        }
-        img
     }
 
     /// This frame's block of standard-normal noise (scaled by `NOISE_SCALE`): a window of the renderer's
@@ -548,37 +543,10 @@ impl ForwardRenderer {
     }
 }
 
-/// Separable Gaussian blur of an interleaved RGB f32 image, edges clamped.
-fn gaussian_blur_rgb(img: &mut [f32], w: usize, h: usize, sigma: f64) {
-    let r = (3.0 * sigma).ceil() as i64;
-    let mut k: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32).collect();
-    let s: f32 = k.iter().sum();
-    k.iter_mut().for_each(|v| *v /= s);
-    let mut tmp = vec![0.0f32; img.len()];
-    for y in 0..h {
-        for x in 0..w {
-            for ch in 0..3 {
-                let mut acc = 0.0;
-                for (t, kv) in k.iter().enumerate() {
-                    let xx = (x as i64 + t as i64 - r).clamp(0, w as i64 - 1) as usize;
-                    acc += kv * img[3 * (y * w + xx) + ch];
-                }
-                tmp[3 * (y * w + x) + ch] = acc;
-            }
-        }
-    }
-    for y in 0..h {
-        for x in 0..w {
-            for ch in 0..3 {
-                let mut acc = 0.0;
-                for (t, kv) in k.iter().enumerate() {
-                    let yy = (y as i64 + t as i64 - r).clamp(0, h as i64 - 1) as usize;
-                    acc += kv * tmp[3 * (yy * w + x) + ch];
-                }
-                img[3 * (y * w + x) + ch] = acc;
-            }
-        }
-    }
+/// Where [`ForwardRenderer::rows`] writes: the sensor's output or the linear values (both interleaved RGB).
+enum Rows<'a> {
+    Encoded(&'a mut [u8]),
+    Linear(&'a mut [f32]),
 }
 
 #[cfg(test)]
@@ -624,7 +592,8 @@ mod tests {
         assert_eq!(a, b);
         // Level at the line's height, facing its middle: the image centre is red, the top is wall.
         let c = &a.data[3 * (240 * 640 + 320)..3 * (240 * 640 + 320) + 3];
-        assert!(c[0] > 150 && c[1] < 60 && c[2] < 60, "{c:?}");
+        // The sRGB camera lifts the paint's dark green and blue (linear 0.12 and 0.10) to about 100.
+        assert!(c[0] > 200 && c[1] < 115 && c[2] < 115 && c[0] > 2 * c[1], "{c:?}");
         let t = &a.data[3 * (20 * 640 + 320)..3 * (20 * 640 + 320) + 3];
         assert!(t[0] > 140 && t[1] > 140, "{t:?}");
         st.seed = 4;

@@ -3,10 +3,10 @@
 //! fine and wide enough to hold every ray the lens takes in, then resampled into the distorted image. Each
 //! pixel of the distorted image is the mean of four samples at +-1/4 pixel (its area, as the pinhole renderer's
 //! exact coverage gives it), each a bilinear read of the fine image at the undistorted position
-//! (`CameraModel::pixel_to_normalized`, vision-core's own inverse of the distortion). Sensor noise, blur and
-//! quantisation are applied after, in the distorted image, as a sensor would.
+//! (`CameraModel::pixel_to_normalized`, vision-core's own inverse of the distortion), in linear light. Blur and
+//! the sensor (clipping, tone curve, noise, quantisation, `super::sensor`) are applied after, in the distorted
+//! image, as a camera would.
 use super::forward::{ForwardRenderer, RenderSettings};
-use crate::imageio::RgbImage;
 use crate::scenario::Scenario;
 use anyhow::{Result, bail};
 use geometry::{Mat3, Vec2, Vec3};
@@ -86,16 +86,16 @@ impl Lens {
         Ok(Some(Self { source, map }))
     }
 
-    /// The distorted image's linear values (3 per pixel, on the 0-255 scale, before noise and quantisation):
-    /// the pinhole image rendered without noise or blur, resampled.
+    /// The distorted image's linear values (3 per pixel, on the 0-255 scale, before blur, the sensor's
+    /// response and noise): the pinhole image's linear values, resampled.
     pub(super) fn render_linear(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings) -> Vec<f32> {
-        let clean = RenderSettings { noise_sigma: 0.0, blur_sigma_px: 0.0, ..*settings };
-        let src = self.source.render(r_wc, center, &clean);
+        let src = self.source.linear_image(r_wc, center, settings);
+        let (sw, sh) = self.source.size();
         let mut out = Vec::with_capacity(3 * self.map.len());
         for m in &self.map {
             let mut acc = [0.0f32; 3];
             for k in 0..4 {
-                let px = bilinear(&src, m[2 * k], m[2 * k + 1]);
+                let px = bilinear(&src, sw, sh, m[2 * k], m[2 * k + 1]);
                 for ch in 0..3 {
                     acc[ch] += px[ch];
                 }
@@ -106,14 +106,15 @@ impl Lens {
     }
 }
 
-/// The image's value at `(x, y)` (pixel centres at integers), bilinear, clamped at the border.
-fn bilinear(img: &RgbImage, x: f32, y: f32) -> [f32; 3] {
-    let (w, h) = (img.width as i64, img.height as i64);
+/// The value of an interleaved RGB image (`w` by `h`) at `(x, y)` (pixel centres at integers), bilinear,
+/// clamped at the border.
+fn bilinear(img: &[f32], w: usize, h: usize, x: f32, y: f32) -> [f32; 3] {
+    let (w, h) = (w as i64, h as i64);
     let (x0, y0) = (x.floor(), y.floor());
     let (ax, ay) = (x - x0, y - y0);
     let at = |xi: i64, yi: i64| {
         let i = 3 * (yi.clamp(0, h - 1) * w + xi.clamp(0, w - 1)) as usize;
-        [img.data[i] as f32, img.data[i + 1] as f32, img.data[i + 2] as f32]
+        [img[i], img[i + 1], img[i + 2]]
     };
     let (xi, yi) = (x0 as i64, y0 as i64);
     let (p00, p10, p01, p11) = (at(xi, yi), at(xi + 1, yi), at(xi, yi + 1), at(xi + 1, yi + 1));

@@ -3,6 +3,7 @@ pub mod down;
 pub mod forward;
 mod lens;
 pub mod polygon;
+mod sensor;
 pub mod texture;
 
 pub use down::{DownPose, DownRenderer, DownSettings};

@@ -171,6 +171,10 @@ pub struct ForwardCameraConfig {
     pub blur_sigma_px: f64,
     /// Exposure gain.
     pub exposure: f64,
+    /// The sensor's tone curve: `"srgb"` (the default, as webcams deliver) or `"linear"`. Each channel clips
+    /// at full scale before it.
+    #[serde(default)]
+    pub response: vision_core::ToneCurve,
     /// Frame rate (Hz).
     #[serde(default = "default_camera_rate")]
     pub rate_hz: f64,

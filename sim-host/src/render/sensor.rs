@@ -1,0 +1,192 @@
+//! What the forward camera's sensor does to the light the optics deliver: optical blur (a separable Gaussian,
+//! row-wise), then per channel clipping at full scale, the tone curve (sRGB unless the scenario says
+//! `forward_camera.response = "linear"`), sensor noise and 8-bit quantisation.
+//!
+//! Linear values are on the 0-255 scale (255 is the sensor's full scale). The tone curve is a table of the
+//! encoded value every 1/16 grey level of linear light, read with linear interpolation (within 0.02 grey
+//! levels of the exact curve; tested), so the per-pixel cost is a multiply-add, not a power.
+use super::forward::quantise;
+use rayon::prelude::*;
+use vision_core::ToneCurve;
+
+/// Table entries per grey level of linear light.
+const STEPS: f32 = 16.0;
+/// Entries: 0 ..= 255 grey levels in `STEPS`, and one more for the interpolation at full scale.
+const ENTRIES: usize = 255 * STEPS as usize + 2;
+
+/// The sensor's response from linear light to the encoded value before noise (0-255 scale).
+pub(super) struct Response {
+    /// `None` for a linear response (the value is kept as it is).
+    table: Option<Box<[f32; ENTRIES]>>,
+}
+
+impl Response {
+    pub(super) fn new(curve: ToneCurve) -> Self {
+        let table = match curve {
+            ToneCurve::Linear => None,
+            _ => {
+                let mut t = Box::new([0.0f32; ENTRIES]);
+                for (i, o) in t.iter_mut().enumerate() {
+                    *o = 255.0 * curve.encode(i as f32 / (STEPS * 255.0));
+                }
+                Some(t)
+            }
+        };
+        Self { table }
+    }
+
+    /// The encoded value of linear light `x` (0-255 scale; clipped at 0 and 255 by the curve).
+    #[inline(always)]
+    #[allow(clippy::manual_clamp)]
+    fn encode(t: &[f32; ENTRIES], x: f32) -> f32 {
+        // `max` first, so NaN reads as 0.
+        let i = (x * STEPS).max(0.0).min(255.0 * STEPS);
+        let k = i as usize;
+        let f = i - k as f32;
+        let k = k.min(ENTRIES - 2);
+        t[k] + f * (t[k + 1] - t[k])
+    }
+
+    /// Encodes, adds noise (`sigma` times the table's standard-normal values) and quantises: `out[i]` from
+    /// `linear[i]` and `noise[i]`.
+    pub(super) fn finish(&self, linear: &[f32], noise: &[i8], sigma: f32, out: &mut [u8]) {
+        match &self.table {
+            None => {
+                for ((o, &x), &n) in out.iter_mut().zip(linear).zip(noise) {
+                    *o = quantise(x + sigma * n as f32);
+                }
+            }
+            Some(t) => {
+                for ((o, &x), &n) in out.iter_mut().zip(linear).zip(noise) {
+                    *o = quantise(Self::encode(t, x) + sigma * n as f32);
+                }
+            }
+        }
+    }
+}
+
+/// Separable Gaussian blur of an interleaved RGB image of linear values (`w` by `h`), edges clamped: a row
+/// pass and a column pass, each a sum of shifted rows (vectorised), rows on the thread pool. Every output
+/// value is the same sum in the same order whatever the threads, so renders stay deterministic.
+pub(super) fn gaussian_blur_rgb(img: &mut [f32], w: usize, h: usize, sigma: f64) {
+    let r = (3.0 * sigma).ceil() as usize;
+    if r == 0 || w == 0 || h == 0 {
+        return;
+    }
+    let mut k: Vec<f32> = (0..=2 * r)
+        .map(|i| (-((i as f64 - r as f64).powi(2)) / (2.0 * sigma * sigma)).exp() as f32)
+        .collect();
+    let s: f32 = k.iter().sum();
+    k.iter_mut().for_each(|v| *v /= s);
+    let row = 3 * w;
+    // Rows: each row padded by r clamped pixels on both sides, then out = sum_t k[t] * padded[3 t ..].
+    let mut tmp = vec![0.0f32; img.len()];
+    tmp.par_chunks_mut(row).zip(img.par_chunks(row)).for_each_init(
+        || vec![0.0f32; 3 * (w + 2 * r)],
+        |pad, (out, src)| {
+            for p in 0..r {
+                pad[3 * p..3 * p + 3].copy_from_slice(&src[..3]);
+                let q = r + w + p;
+                pad[3 * q..3 * q + 3].copy_from_slice(&src[row - 3..]);
+            }
+            pad[3 * r..3 * (r + w)].copy_from_slice(src);
+            out.fill(0.0);
+            for (t, &kv) in k.iter().enumerate() {
+                for (o, &p) in out.iter_mut().zip(&pad[3 * t..3 * t + row]) {
+                    *o += kv * p;
+                }
+            }
+        },
+    );
+    // Columns: output row y is the weighted sum of rows y - r ..= y + r (clamped).
+    img.par_chunks_mut(row).enumerate().for_each(|(y, out)| {
+        out.fill(0.0);
+        for (t, &kv) in k.iter().enumerate() {
+            let yy = (y + t).saturating_sub(r).min(h - 1);
+            for (o, &p) in out.iter_mut().zip(&tmp[yy * row..(yy + 1) * row]) {
+                *o += kv * p;
+            }
+        }
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The direct per-pixel Gaussian (the renderer's earlier one), for comparison.
+    fn reference_blur(img: &[f32], w: usize, h: usize, sigma: f64) -> Vec<f32> {
+        let r = (3.0 * sigma).ceil() as i64;
+        let k: Vec<f64> = (-r..=r).map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp()).collect();
+        let s: f64 = k.iter().sum();
+        let mut tmp = vec![0.0f64; img.len()];
+        for y in 0..h {
+            for x in 0..w {
+                for ch in 0..3 {
+                    tmp[3 * (y * w + x) + ch] = (0..k.len())
+                        .map(|t| {
+                            let xx = (x as i64 + t as i64 - r).clamp(0, w as i64 - 1) as usize;
+                            k[t] / s * img[3 * (y * w + xx) + ch] as f64
+                        })
+                        .sum();
+                }
+            }
+        }
+        let mut out = vec![0.0f32; img.len()];
+        for y in 0..h {
+            for x in 0..w {
+                for ch in 0..3 {
+                    out[3 * (y * w + x) + ch] = (0..k.len())
+                        .map(|t| {
+                            let yy = (y as i64 + t as i64 - r).clamp(0, h as i64 - 1) as usize;
+                            k[t] / s * tmp[3 * (yy * w + x) + ch]
+                        })
+                        .sum::<f64>() as f32;
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn the_row_wise_blur_is_the_gaussian_with_clamped_edges() {
+        let (w, h) = (37, 23);
+        let mut s = 7u64;
+        let img: Vec<f32> = (0..3 * w * h).map(|_| (crate::rng::splitmix64(&mut s) % 256) as f32).collect();
+        for sigma in [0.4, 1.0, 1.5, 3.0] {
+            let mut fast = img.clone();
+            gaussian_blur_rgb(&mut fast, w, h, sigma);
+            let want = reference_blur(&img, w, h, sigma);
+            let worst = fast.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+            assert!(worst < 1e-3, "sigma {sigma}: worst difference {worst}");
+        }
+        // A flat image stays flat; a very small sigma (no taps) leaves the image as it is.
+        let mut flat = vec![100.0f32; 3 * w * h];
+        gaussian_blur_rgb(&mut flat, w, h, 2.0);
+        assert!(flat.iter().all(|v| (v - 100.0).abs() < 1e-3));
+        let mut same = img.clone();
+        gaussian_blur_rgb(&mut same, w, h, 0.0);
+        assert_eq!(same, img);
+    }
+
+    #[test]
+    fn the_srgb_table_follows_the_curve_and_clips_per_channel() {
+        let srgb = Response::new(ToneCurve::Srgb);
+        let t = srgb.table.as_deref().unwrap();
+        let mut worst = 0.0f32;
+        for i in 0..=25_500 {
+            let x = i as f32 / 100.0;
+            let exact = 255.0 * ToneCurve::Srgb.encode(x / 255.0);
+            worst = worst.max((Response::encode(t, x) - exact).abs());
+        }
+        assert!(worst < 0.02, "{worst} grey levels");
+        let mut out = [0u8; 6];
+        // Half the light is 186 in sRGB; above full scale a channel clips alone; NaN and negative read black.
+        srgb.finish(&[127.5, 255.0, 400.0, 0.0, -5.0, f32::NAN], &[0; 6], 0.0, &mut out);
+        assert_eq!(out, [188, 255, 255, 0, 0, 0]);
+        let lin = Response::new(ToneCurve::Linear);
+        // The noise table holds 32 per standard deviation: 2 grey levels of noise at +1 sigma.
+        lin.finish(&[127.4, 255.0, 400.0, 0.0, -5.0, 3.0], &[0, 0, 0, 0, 0, 32], 2.0 / 32.0, &mut out);
+        assert_eq!(out, [127, 255, 255, 0, 0, 5]);
+    }
+}
