@@ -2,6 +2,7 @@
 //! source of truth: exact area anti-aliasing, textures, lighting gain and gradients, sensor noise).
 use geometry::{Vec3, deg, to_deg};
 use sim_host::Scenario;
+use sim_host::imageio::RgbImage;
 use sim_host::render::ForwardRenderer;
 use sim_host::rng::SimRng;
 use sim_host::vision::{GroundVision, PoseMethod};
@@ -87,13 +88,25 @@ fn evaluate_with(
     blur_px: f64,
     source: impl Fn(&EnvelopeFrame, &mut SimRng) -> AttitudeSource,
 ) -> Errors {
+    evaluate_through(scenario, frames, blur_px, source, |_, img| img)
+}
+
+/// As [`evaluate_with`], each frame passed through `deliver` (the frame's index, the rendered image) before
+/// the vision sees it: compression, a camera's transport.
+fn evaluate_through(
+    scenario: &Scenario,
+    frames: &[EnvelopeFrame],
+    blur_px: f64,
+    source: impl Fn(&EnvelopeFrame, &mut SimRng) -> AttitudeSource,
+    deliver: impl Fn(usize, RgbImage) -> RgbImage,
+) -> Errors {
     let scenario = scenario.clone();
     let renderer = ForwardRenderer::new(&scenario).unwrap();
     let mut vision = GroundVision::new(&scenario);
     let mount = scenario.forward_camera_mount();
     let mut noise = SimRng::stream(2024, "imu-attitude-noise");
     let mut e = Errors::default();
-    for f in frames {
+    for (i, f) in frames.iter().enumerate() {
         e.frames += 1;
         let mut settings = renderer.default_settings();
         settings.light_gain = f.light_gain;
@@ -101,7 +114,7 @@ fn evaluate_with(
         settings.seed = f.seed;
         settings.blur_sigma_px = blur_px;
         let r_wc = f.attitude.world_from_body().mul_mat(&mount.body_from_camera);
-        let img = renderer.render(&r_wc, f.position, &settings);
+        let img = deliver(i, renderer.render(&r_wc, f.position, &settings));
         let src = source(f, &mut noise);
         let Ok(r) = vision.pose(&img, src, PoseMethod::Refined) else {
             e.no_pose += 1;
@@ -208,6 +221,28 @@ fn imu_aided_pose_through_a_wide_angle_lens() {
         );
     }
     assert!(lens.x_unknown <= pinhole.x_unknown, "x unknown in {} frames", lens.x_unknown);
+}
+
+#[test]
+#[ignore = "known defect (docs/camera-effects.md): JPEG's chroma loss moves the chroma edges; run with --ignored"]
+fn imu_aided_pose_on_webcam_jpeg() {
+    // Each frame as a webcam's MJPEG delivers it: JPEG at a quality from 50 to 95 (4:2:2 chroma), decoded
+    // by the station's decoder. Measured: x / y / z median 6.8 / 6.0 / 15.2 mm, p95 33.0 / 23.7 / 58.0 mm,
+    // coverage 42 / 43 / 53 %, x wrong by up to 62 mm with an end out of view: the detector's edges are on
+    // the chroma signal 2R - G - B, which JPEG subsamples and quantises hardest.
+    let frames = envelope_frames(240, 2024);
+    let quality = |i: usize| 50 + (i * 7 % 46) as u8;
+    let e = evaluate_through(&Scenario::paper(), &frames, 0.0, imu, |i, img| {
+        let mut jpeg = Vec::new();
+        let mut enc = jpeg_encoder::Encoder::new(&mut jpeg, quality(i));
+        enc.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_2_2);
+        enc.encode(&img.data, img.width as u16, img.height as u16, jpeg_encoder::ColorType::Rgb).unwrap();
+        let (width, height, data) = ground_station::v4l2::decode_jpeg(&jpeg, 3).unwrap();
+        RgbImage { width, height, data }
+    });
+    e.report("IMU-aided, sRGB camera, JPEG quality 50-95, 240 frames");
+    assert_eq!(e.no_pose, 0);
+    e.assert_bounds("JPEG");
 }
 
 #[test]
