@@ -224,4 +224,9 @@ impl FlowTracker {
     ) -> Result<FlowStats, NoFlowReason> {
         flow::flow_between(prev, next, &self.camera, &self.params, predicted_rotation_cam, &mut self.ws)
     }
+
+    /// Where the floor repeats, when the last pair was refused as [`NoFlowReason::RepeatingTexture`].
+    pub fn repetition(&self) -> Option<flow::Repetition> {
+        self.ws.repetition()
+    }
 }

@@ -624,6 +624,14 @@ mod golden {
             frame_of(&Uplink::PackedFlow(none)),
             [0x0D, 0x01, 0x08, 0xE8, 0x07, 0x9B, 0x82, 0x01, 0x03, 0x01, 0x01, 0x85, 0xB7, 0x00]
         );
+        // The appended reason (log format 9): a repeating floor, RepeatingTexture (4).
+        let repeating = PackedFlow { result: Err(NoFlowReason::RepeatingTexture), ..none };
+        let body = [WIRE_VERSION, 8, 0xE8, 0x07, 0x9B, 0x82, 0x01, 0x03, 0x01, 0x04];
+        assert_eq!(crc16(&body), 0xE720);
+        assert_eq!(
+            frame_of(&Uplink::PackedFlow(repeating)),
+            [0x0D, 0x01, 0x08, 0xE8, 0x07, 0x9B, 0x82, 0x01, 0x03, 0x01, 0x04, 0x20, 0xE7, 0x00]
+        );
         // An edge: centroid (0.5, -0.25) as two f32, normal angle 0 (f32), 100 points, spread 1.0 and RMS 0.5
         // as half precision (00 3C, 00 38).
         let e = PackedEdge::pack(&EdgeStats {

@@ -39,6 +39,12 @@ fn bench(c: &mut Criterion) {
     c.bench_function("flow_pair_160x120", |bch| {
         bch.iter(|| flow.between(black_box(&a), black_box(&b), Vec3::ZERO))
     });
+    // The same pair without the repetition check, side by side (its cost as a ratio).
+    let params = vision_core::flow::FlowParams { max_repetition_ratio: 0.0, ..Default::default() };
+    let mut unchecked = GroundFlow::with_params(scenario.down_camera_model(), params);
+    c.bench_function("flow_pair_160x120_without_repetition_check", |bch| {
+        bch.iter(|| unchecked.between(black_box(&a), black_box(&b), Vec3::ZERO))
+    });
 }
 
 criterion_group!(benches, bench);

@@ -62,6 +62,11 @@ impl GroundFlow {
     ) -> Result<FlowStats, NoFlowReason> {
         self.0.between(&prev.view(), &next.view(), predicted_rotation_cam)
     }
+
+    /// Where the floor repeats, when the last pair was refused as [`NoFlowReason::RepeatingTexture`].
+    pub fn repetition(&self) -> Option<vision_core::flow::Repetition> {
+        self.0.repetition()
+    }
 }
 
 /// The analytic stand-in for the tracker: floor points on a grid of the earlier frame, projected exactly into
@@ -129,7 +134,14 @@ pub fn flow_json(s: &FlowStats, fx_px: f32, velocity_body: Option<[f32; 2]>) -> 
     v
 }
 
-/// The JSON of a frame pair without flow.
-pub fn no_flow_json(why: NoFlowReason) -> Value {
-    json!({"status": "no_flow", "reason": why.code(), "message": why.describe(), "quality": 0.0})
+/// The JSON of a frame pair without flow; for a repeating floor, where it repeats (`repeats_every_px`, the
+/// offset in pixels of the earlier frame) and how well (`repetition_ratio`: the match there over the typical
+/// one, 0 for a perfect repetition).
+pub fn no_flow_json(why: NoFlowReason, repetition: Option<vision_core::flow::Repetition>) -> Value {
+    let mut v = json!({"status": "no_flow", "reason": why.code(), "message": why.describe(), "quality": 0.0});
+    if let Some(r) = repetition {
+        v["repeats_every_px"] = json!([r.offset_px.x, r.offset_px.y]);
+        v["repetition_ratio"] = json!(r.ratio);
+    }
+    v
 }

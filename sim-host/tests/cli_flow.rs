@@ -82,6 +82,37 @@ fn the_gyro_removes_a_rotation() {
 }
 
 #[test]
+fn a_tiled_floor_is_refused_naming_its_repetition() {
+    // 160x120 tiles repeating every 12 px, the next frame shifted by 8 px (two thirds of a tile): the tracks
+    // would agree on the alias, -4 px.
+    let tiles = |shift: f32| {
+        let mut img = sim_host::imageio::GrayImage::new(160, 120);
+        let k = std::f32::consts::TAU / 12.0;
+        for y in 0..120 {
+            for x in 0..160 {
+                let u = x as f32 - shift;
+                let v = (128.0 + 60.0 * (k * u).sin() * (k * y as f32).sin()).round() as u8;
+                img.data[y * 160 + x] = v;
+            }
+        }
+        img
+    };
+    let (a, b) = (tmp("tiles0.png"), tmp("tiles1.png"));
+    sim_host::imageio::write_png_gray(&a, &tiles(0.0)).unwrap();
+    sim_host::imageio::write_png_gray(&b, &tiles(8.0)).unwrap();
+    let out = run(&["vision", "flow", "--prev", a.to_str().unwrap(), "--next", b.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stdout));
+    let j = json(&out);
+    assert_eq!((j["status"].as_str(), j["reason"].as_str()), (Some("no_flow"), Some("repeating_texture")));
+    // The repetition found: 12 px along an axis or a diagonal of the tiling (its lattice vectors are
+    // (12, 0), (0, 12) and (6, 6)), matched almost perfectly.
+    let r = &j["repeats_every_px"];
+    let (dx, dy) = (r[0].as_f64().unwrap().abs(), r[1].as_f64().unwrap().abs());
+    assert!([(12.0, 0.0), (0.0, 12.0), (6.0, 6.0)].contains(&(dx, dy)), "{j}");
+    assert!(j["repetition_ratio"].as_f64().unwrap() < 0.1, "{j}");
+}
+
+#[test]
 fn a_blank_floor_is_no_flow_exit_2() {
     let scenario = tmp("blank.toml");
     let text = include_str!("../scenarios/paper.toml")

@@ -240,3 +240,35 @@ fn rendered_sub_pixel_shifts_are_tracked() {
         assert!((f.x - k).abs() < 0.015 && f.y.abs() < 0.01, "shift {k}: {f:?}");
     }
 }
+
+#[test]
+fn rendered_floors_are_not_taken_for_repeating_ones() {
+    // The repetition check must not refuse the floors the scenarios offer: each kind, at heights 0.3-1.5 m
+    // and two contrasts, still and after a 3 px move.
+    let mut refused = Vec::new();
+    let mut pairs = 0;
+    for kind in ["speckled", "concrete", "plaster"] {
+        for contrast in [0.2, 0.5] {
+            let text = include_str!("../../sim-host/scenarios/paper.toml")
+                .replace("floor_texture = \"speckled\"", &format!("floor_texture = \"{kind}\""))
+                .replace("floor_texture_contrast = 0.5", &format!("floor_texture_contrast = {contrast}"));
+            let s = Scenario::from_toml(&text).unwrap();
+            let r = DownRenderer::new(&s).unwrap();
+            let mut fl = GroundFlow::new(&s);
+            for (i, h) in [0.3f64, 0.6, 0.9, 1.2, 1.5].into_iter().enumerate() {
+                let r_wc = Attitude::new(0.0, 0.0, 0.0).world_from_body().mul_mat(&BODY_FROM_DOWN_CAMERA);
+                let step = 3.0 * h / s.down_camera.fx_px;
+                let mut set = r.default_settings();
+                set.seed = i as u64;
+                let a = r.render(&DownPose::still(f64m(&r_wc), [0.5 + 0.3 * i as f64, 1.3, h]), &set);
+                set.seed += 100;
+                let b = r.render(&DownPose::still(f64m(&r_wc), [0.5 + 0.3 * i as f64 + step, 1.3, h]), &set);
+                pairs += 1;
+                if fl.between(&a, &b, Vec3::ZERO) == Err(vision_core::flow::NoFlowReason::RepeatingTexture) {
+                    refused.push((kind, contrast, h, fl.repetition()));
+                }
+            }
+        }
+    }
+    assert!(refused.is_empty(), "{} of {pairs} pairs refused: {refused:?}", refused.len());
+}
