@@ -74,7 +74,10 @@ pub struct RenderSettings {
     pub noise_sigma: f64,
     /// Optical blur (px, Gaussian sigma).
     pub blur_sigma_px: f64,
-    /// Seed of this frame's sensor noise.
+    /// This frame's exposure relative to the camera's (times the auto exposure's factor when the scenario's
+    /// `exposure_step` is not zero).
+    pub exposure_gain: f64,
+    /// Seed of this frame's sensor noise (and auto exposure).
     pub seed: u64,
 }
 
@@ -99,6 +102,12 @@ pub struct ForwardRenderer {
     lens: Option<Box<super::lens::Lens>>,
     /// Clipping, tone curve and quantisation (`super::sensor`).
     response: Response,
+    /// Per pixel, the lens's light fall-off (None without vignetting).
+    vignette: Option<Vec<f32>>,
+    /// Auto exposure's relative step (`forward_camera.exposure_step`).
+    exposure_step: f64,
+    /// JPEG quality of the delivered frames (0: uncompressed).
+    jpeg_quality: u8,
 }
 
 /// Standard-normal noise is stored as `round(32 n)` in an `i8` (clipped at +-3.97 sigma).
@@ -251,11 +260,15 @@ impl ForwardRenderer {
             noise: noise_buffer(3 * c.width_px as usize * c.height_px as usize),
             lens,
             response: Response::new(c.response),
+            vignette: super::sensor::vignette(c),
+            exposure_step: c.exposure_step,
+            jpeg_quality: c.jpeg_quality,
             defaults: RenderSettings {
                 light_gain: sc.light_gain,
                 light_gradient_per_m: sc.light_gradient_per_m,
                 noise_sigma: c.noise_sigma,
                 blur_sigma_px: c.blur_sigma_px,
+                exposure_gain: 1.0,
                 seed: 0,
             },
         })
@@ -276,20 +289,39 @@ impl ForwardRenderer {
         let mut img = RgbImage::new(self.width, self.height);
         if self.lens.is_none() && settings.blur_sigma_px <= 0.0 {
             self.rows(r_wc, center, settings, Rows::Encoded(&mut img.data));
-            return img;
+        } else {
+            // Through the lens (the resampled pinhole image) or the optics' blur: the whole frame's linear
+            // values first, then the sensor.
+            let mut linear = match &self.lens {
+                Some(lens) => lens.render_linear(r_wc, center, settings),
+                None => self.linear_image(r_wc, center, settings),
+            };
+            if let Some(v) = &self.vignette {
+                for (px, g) in linear.chunks_exact_mut(3).zip(v) {
+                    px.iter_mut().for_each(|c| *c *= g);
+                }
+            }
+            if settings.blur_sigma_px > 0.0 {
+                gaussian_blur_rgb(&mut linear, self.width, self.height, settings.blur_sigma_px);
+            }
+            let sigma = settings.noise_sigma as f32 / NOISE_SCALE;
+            self.response.finish(&linear, self.noise_block(settings.seed), sigma, &mut img.data);
         }
-        // Through the lens (the resampled pinhole image) or the optics' blur: the whole frame's linear
-        // values first, then the sensor.
-        let mut linear = match &self.lens {
-            Some(lens) => lens.render_linear(r_wc, center, settings),
-            None => self.linear_image(r_wc, center, settings),
-        };
-        if settings.blur_sigma_px > 0.0 {
-            gaussian_blur_rgb(&mut linear, self.width, self.height, settings.blur_sigma_px);
+        if self.jpeg_quality > 0 {
+            img = super::sensor::through_jpeg(&img, self.jpeg_quality);
         }
-        let sigma = settings.noise_sigma as f32 / NOISE_SCALE;
-        self.response.finish(&linear, self.noise_block(settings.seed), sigma, &mut img.data);
         img
+    }
+
+    /// The auto exposure's factor for a frame (1 without it): uniform in `1 +- exposure_step`, drawn from the
+    /// frame's seed.
+    fn auto_exposure(&self, seed: u64) -> f32 {
+        if self.exposure_step <= 0.0 {
+            return 1.0;
+        }
+        let mut s = seed ^ 0xAE00_AE00_AE00_AE00;
+        let u = (splitmix64(&mut s) >> 11) as f64 / (1u64 << 53) as f64;
+        (1.0 + self.exposure_step * (2.0 * u - 1.0)) as f32
     }
 
     /// The light on each pixel (3 values per pixel, interleaved, on the 0-255 scale of the sensor's full
@@ -314,7 +346,11 @@ impl ForwardRenderer {
             })
             .collect();
         let (w, h) = (self.width, self.height);
-        let scale = 255.0 * self.exposure;
+        let scale = 255.0 * self.exposure * settings.exposure_gain as f32 * self.auto_exposure(settings.seed);
+        let vignette = match (&out, &self.vignette) {
+            (Rows::Encoded(_), Some(v)) => Some(v.as_slice()),
+            _ => None,
+        };
         let (g0, [gx, gz]) = (settings.light_gain as f32, settings.light_gradient_per_m.map(|v| v as f32));
         let (lcx, lcz) = (self.line_center[0] as f32, self.line_center[2] as f32);
         let cf = c.map(|v| v as f32);
@@ -456,6 +492,11 @@ impl ForwardRenderer {
                     }
                 }
                 if px_row.is_some() {
+                    if let Some(vg) = vignette {
+                        for (p, g) in plane.iter_mut().zip(&vg[v * w..(v + 1) * w]) {
+                            *p *= g;
+                        }
+                    }
                     let nz = &noise[(ch * h + v) * w..(ch * h + v + 1) * w];
                     self.response.finish(plane, nz, sigma, &mut qplanes[ch]);
                 }
@@ -577,6 +618,60 @@ mod tests {
         ] {
             assert_eq!(quantise(v), q, "{v}");
         }
+    }
+
+    /// The paper scene, level, facing the line's middle from 1.3 m, without noise.
+    fn clean_view(s: &crate::Scenario, seed: u64) -> RgbImage {
+        let r = ForwardRenderer::new(s).unwrap();
+        let mount = s.forward_camera_mount();
+        let r_wc = geometry::frames::Attitude::default().world_from_body().mul_mat(&mount.body_from_camera);
+        let mut st = r.default_settings();
+        (st.seed, st.noise_sigma) = (seed, 0.0);
+        r.render(&r_wc, Vec3::new(1.15, 1.3, 1.0), &st)
+    }
+
+    fn grey_at(img: &RgbImage, u: usize, v: usize) -> u8 {
+        img.data[3 * (v * img.width + u) + 1]
+    }
+
+    #[test]
+    fn vignetting_darkens_the_corners_only() {
+        let mut s = crate::Scenario::paper();
+        let plain = clean_view(&s, 1);
+        s.forward_camera.vignetting = 0.5;
+        let vignetted = clean_view(&s, 1);
+        // The centre keeps its light; a corner gets half of it: sRGB of half the light is 0.73 of the value
+        // (the wall's green at 1.0 is 0.68 linear, 216; half of it 0.34 linear, 158).
+        assert_eq!(grey_at(&plain, 320, 240), grey_at(&vignetted, 320, 240));
+        let (a, b) = (grey_at(&plain, 0, 0) as f32, grey_at(&vignetted, 0, 0) as f32);
+        assert!((b / a - 0.73).abs() < 0.03, "corner {a} -> {b}");
+        let (a, b) = (grey_at(&plain, 320, 0) as f32, grey_at(&vignetted, 320, 0) as f32);
+        assert!(b < a && b > 0.8 * a, "top middle {a} -> {b}");
+    }
+
+    #[test]
+    fn auto_exposure_changes_between_frames_by_the_seed() {
+        let mut s = crate::Scenario::paper();
+        assert_eq!(grey_at(&clean_view(&s, 1), 320, 20), grey_at(&clean_view(&s, 2), 320, 20));
+        s.forward_camera.exposure_step = 0.3;
+        let levels: Vec<u8> = (0..20).map(|k| grey_at(&clean_view(&s, k), 320, 20)).collect();
+        let (lo, hi) = (*levels.iter().min().unwrap(), *levels.iter().max().unwrap());
+        // The wall's green (0.68 linear at exposure 1, 216) within exposures 0.7-1.3: 183-243.
+        assert!(lo >= 180 && hi <= 246 && hi - lo > 30, "{levels:?}");
+        assert_eq!(clean_view(&s, 7), clean_view(&s, 7));
+    }
+
+    #[test]
+    fn jpeg_delivers_a_compressed_frame() {
+        let mut s = crate::Scenario::paper();
+        let plain = clean_view(&s, 1);
+        s.forward_camera.jpeg_quality = 60;
+        let jpeg = clean_view(&s, 1);
+        assert_eq!(jpeg, clean_view(&s, 1));
+        let diff: Vec<i32> = plain.data.iter().zip(&jpeg.data).map(|(a, b)| *a as i32 - *b as i32).collect();
+        let mean_abs = diff.iter().map(|d| d.abs() as f64).sum::<f64>() / diff.len() as f64;
+        // Changed, but by a few grey levels on average (the band's edges and the texture).
+        assert!(mean_abs > 0.2 && mean_abs < 4.0, "{mean_abs}");
     }
 
     #[test]

@@ -71,6 +71,9 @@ impl Lens {
         (pc.width_px, pc.height_px) = (sw as _, sh as _);
         (pc.fx_px, pc.fy_px, pc.cx_px, pc.cy_px) = (fx, fy, cx, cy);
         pc.distortion = [0.0; 5];
+        // Vignetting and compression happen in the distorted image (the outer renderer); the auto exposure
+        // is the source's, once.
+        (pc.vignetting, pc.jpeg_quality) = (0.0, 0);
         let source = ForwardRenderer::new(&pinhole)?;
         let (fx, fy, cx, cy) = (fx as f32, fy as f32, cx as f32, cy as f32);
         let map = normalized

@@ -7,6 +7,7 @@
 //! the exact curve below 1 grey level of light, where sRGB's slope is 12.92, within 0.09 above and 0.023
 //! above 10; tested), so the per-pixel cost is a table read, not a power.
 use super::forward::{MAGIC, quantise};
+use crate::imageio::RgbImage;
 use rayon::prelude::*;
 use vision_core::ToneCurve;
 
@@ -63,6 +64,46 @@ impl Response {
                 }
             }
         }
+    }
+}
+
+/// The lens's light fall-off per pixel for the forward camera: `1 - vignetting` at the farthest corner,
+/// quadratic in the distance from the principal point (the downward camera's model). None without it.
+pub(super) fn vignette(c: &crate::scenario::ForwardCameraConfig) -> Option<Vec<f32>> {
+    if c.vignetting <= 0.0 {
+        return None;
+    }
+    let (w, h) = (c.width_px as usize, c.height_px as usize);
+    let corner = |x: f64, y: f64| (x - c.cx_px).powi(2) + (y - c.cy_px).powi(2);
+    let r2max = [(0.0, 0.0), (w as f64, 0.0), (0.0, h as f64), (w as f64, h as f64)]
+        .iter()
+        .map(|&(x, y)| corner(x, y))
+        .fold(1e-9, f64::max);
+    let mut out = Vec::with_capacity(w * h);
+    for v in 0..h {
+        for u in 0..w {
+            out.push((1.0 - c.vignetting * corner(u as f64, v as f64) / r2max) as f32);
+        }
+    }
+    Some(out)
+}
+
+/// The frame as a webcam's MJPEG delivers it: encoded at `quality` with 4:2:2 chroma (averaged), decoded by
+/// the station's decoder (`ground_station::v4l2::decode_jpeg`).
+pub(super) fn through_jpeg(img: &RgbImage, quality: u8) -> RgbImage {
+    let mut jpeg = Vec::new();
+    let mut enc = jpeg_encoder::Encoder::new(&mut jpeg, quality.clamp(1, 100));
+    enc.set_sampling_factor(jpeg_encoder::SamplingFactor::R_4_2_2);
+    enc.set_chroma_subsampling_method(jpeg_encoder::ChromaSubsamplingMethod::Average);
+    // The encoder fails only on sizes beyond JPEG's 65535 or buffer writes to a Vec, neither possible for a
+    // validated scenario; an empty result falls through to the decoder's error below.
+    let encoded = enc.encode(&img.data, img.width as u16, img.height as u16, jpeg_encoder::ColorType::Rgb);
+    match encoded
+        .map_err(|e| e.to_string())
+        .and_then(|()| ground_station::v4l2::decode_jpeg(&jpeg, 3).map_err(|e| format!("{e:?}")))
+    {
+        Ok((width, height, data)) => RgbImage { width, height, data },
+        Err(e) => panic!("JPEG round trip of a {}x{} frame failed: {e}", img.width, img.height),
     }
 }
 

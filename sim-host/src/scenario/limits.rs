@@ -115,6 +115,12 @@ limits! {
     FORWARD_NOISE = "forward_camera.noise_sigma" closed [0, 64] "grey levels";
     FORWARD_BLUR = "forward_camera.blur_sigma_px" closed [0, FORWARD_BLUR_MAX_PX] "px";
     FORWARD_EXPOSURE = "forward_camera.exposure" above [0, 10] "";
+    /// Auto exposure: each frame's exposure is the configured one times a factor within 1 +- this.
+    FORWARD_EXPOSURE_STEP = "forward_camera.exposure_step" closed [0, 0.5] "";
+    /// Light at the image corners relative to the centre is 1 minus this (quadratic fall-off).
+    FORWARD_VIGNETTING = "forward_camera.vignetting" closed [0, 0.9] "";
+    /// MJPEG as webcams send it (4:2:2 chroma); 0: uncompressed.
+    FORWARD_JPEG_QUALITY = "forward_camera.jpeg_quality" closed [0, 100] "";
     FORWARD_RATE = "forward_camera.rate_hz" above [0, 200] "Hz";
     /// The estimator keeps 0.25 s of history.
     FORWARD_LATENCY = "forward_camera.latency_s" closed [0, 0.2] "s";

@@ -175,6 +175,17 @@ pub struct ForwardCameraConfig {
     /// at full scale before it.
     #[serde(default)]
     pub response: vision_core::ToneCurve,
+    /// Auto exposure: each frame's exposure is `exposure` times a factor drawn from `1 +- exposure_step` by the
+    /// frame's seed (0: fixed exposure).
+    #[serde(default)]
+    pub exposure_step: f64,
+    /// Light at the image corners relative to the centre is `1 - vignetting` (quadratic in the distance from
+    /// the principal point).
+    #[serde(default)]
+    pub vignetting: f64,
+    /// JPEG quality of the delivered frames, 4:2:2 chroma as webcams' MJPEG (1-100; 0: uncompressed).
+    #[serde(default)]
+    pub jpeg_quality: u8,
     /// Frame rate (Hz).
     #[serde(default = "default_camera_rate")]
     pub rate_hz: f64,
