@@ -169,6 +169,32 @@ fn translation_with_rotation_gives_the_body_velocity() {
 }
 
 #[test]
+fn a_webcam_s_srgb_downward_camera_gives_the_same_velocities() {
+    // The paper's downward camera was a webcam: sRGB values instead of linear ones. The flow assumes only
+    // that a floor point keeps its value between two frames, which a fixed tone curve keeps; the same 60
+    // motions as above measured RMS x 0.0082, y 0.0085 m/s (linear: 0.0075, 0.0094).
+    let mut s = Scenario::paper();
+    s.down_camera.response = vision_core::ToneCurve::Srgb;
+    let r = DownRenderer::new(&s).unwrap();
+    let mut fl = GroundFlow::new(&s);
+    let mut rng = SimRng::stream(12, "flow-translation");
+    let (mut sx, mut sy, mut n) = (0.0f64, 0.0f64, 0);
+    for _ in 0..60 {
+        let m = random_motion(&mut rng, 0.5, 0.5);
+        let (v, t) = measure(&s, &r, &mut fl, &m, SCENARIO_GYRO_NOISE, &mut rng)
+            .expect("a textured floor gives a flow");
+        let (ex, ey) = ((v.x - t.x) as f64, (v.y - t.y) as f64);
+        assert!(ex.abs() < 0.05 && ey.abs() < 0.05, "{m:?}: measured {v:?}, true {t:?}");
+        sx += ex * ex;
+        sy += ey * ey;
+        n += 1;
+    }
+    let (rx, ry) = ((sx / n as f64).sqrt(), (sy / n as f64).sqrt());
+    println!("sRGB translation: {n} pairs, RMS error x {rx:.4} y {ry:.4} m/s");
+    assert!(rx < 0.02 && ry < 0.02);
+}
+
+#[test]
 fn a_nearly_blank_floor_gives_no_flow() {
     let mut s = Scenario::paper();
     s.scene.floor_texture_contrast = 0.002;

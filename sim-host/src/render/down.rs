@@ -5,9 +5,10 @@
 //! mip pyramid chosen by the pixel's footprint on the floor (so fine texture does not alias into flicker); the
 //! scene's light gain and gradient and the lens's vignetting scale it; the exposure integrates `K` sub-frames
 //! spread over the exposure time, at poses extrapolated with the vehicle's velocity and angular rate (motion
-//! blur, `K` chosen so that sub-frames are at most half a pixel apart); then Gaussian sensor noise and 8-bit
+//! blur, `K` chosen so that sub-frames are at most half a pixel apart); then the sensor (`super::sensor`):
+//! clipping at full scale, the tone curve (`down_camera.response`, linear by default), Gaussian noise and 8-bit
 //! quantisation. Everything is a pure function of the scene, the motion and the frame's seed.
-use super::forward::{MAGIC, floor_f, noise_buffer, quantise};
+use super::forward::{MAGIC, floor_f, noise_buffer};
 use super::texture::Texture;
 use crate::imageio::GrayImage;
 use crate::rng::splitmix64;
@@ -93,6 +94,8 @@ pub struct DownRenderer {
     gradient_x: f32,
     light_center_x: f32,
     vignette: Vec<f32>,
+    /// Clipping, tone curve and quantisation (`super::sensor`).
+    response: super::sensor::Response,
     noise: Vec<i8>,
     defaults: DownSettings,
 }
@@ -187,6 +190,7 @@ impl DownRenderer {
             gradient_x: sc.light_gradient_per_m[0] as f32,
             light_center_x: (0.5 * (sc.line_x_start_m + sc.line_x_end_m)) as f32,
             vignette,
+            response: super::sensor::Response::new(c.response),
             noise: noise_buffer(w * h),
             defaults: DownSettings {
                 light_gain: sc.light_gain,
@@ -233,13 +237,12 @@ impl DownRenderer {
             blur5(&mut acc, w, h, settings.blur_sigma_px);
         }
         let scale = 255.0 * self.exposure * self.albedo;
-        let sigma = settings.noise_sigma as f32 / NOISE_SCALE;
-        let noise = self.noise_block(settings.seed);
-        let mut img = GrayImage::new(w, h);
-        for (((o, a), vg), n) in img.data.iter_mut().zip(&acc).zip(&self.vignette).zip(noise) {
-            let v = scale * a * vg + sigma * *n as f32;
-            *o = quantise(v);
+        for (a, vg) in acc.iter_mut().zip(&self.vignette) {
+            *a = scale * *a * vg;
         }
+        let sigma = settings.noise_sigma as f32 / NOISE_SCALE;
+        let mut img = GrayImage::new(w, h);
+        self.response.finish(&acc, self.noise_block(settings.seed), sigma, &mut img.data);
         img
     }
 

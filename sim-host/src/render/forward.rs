@@ -262,7 +262,8 @@ impl ForwardRenderer {
             response: Response::new(c.response),
             vignette: super::sensor::vignette(c),
             exposure_step: c.exposure_step,
-            jpeg_quality: c.jpeg_quality,
+            // Validated to 0..=100.
+            jpeg_quality: c.jpeg_quality.clamp(0, 100) as u8,
             defaults: RenderSettings {
                 light_gain: sc.light_gain,
                 light_gradient_per_m: sc.light_gradient_per_m,

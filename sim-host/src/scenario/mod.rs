@@ -185,7 +185,7 @@ pub struct ForwardCameraConfig {
     pub vignetting: f64,
     /// JPEG quality of the delivered frames, 4:2:2 chroma as webcams' MJPEG (1-100; 0: uncompressed).
     #[serde(default)]
-    pub jpeg_quality: u8,
+    pub jpeg_quality: i32,
     /// Frame rate (Hz).
     #[serde(default = "default_camera_rate")]
     pub rate_hz: f64,
@@ -236,6 +236,9 @@ pub struct DownCameraConfig {
     pub blur_sigma_px: f64,
     /// Relative brightness loss in the image corners (0 = none).
     pub vignetting: f64,
+    /// The sensor's tone curve: `"linear"` (the default: a grey machine-vision sensor, as optical-flow
+    /// cameras use) or `"srgb"` (a webcam); the sensor clips at full scale before it.
+    pub response: vision_core::ToneCurve,
 }
 
 impl Default for DownCameraConfig {
@@ -258,6 +261,7 @@ impl Default for DownCameraConfig {
             noise_sigma: 2.0,
             blur_sigma_px: 1.0,
             vignetting: 0.2,
+            response: vision_core::ToneCurve::Linear,
         }
     }
 }
