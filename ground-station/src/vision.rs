@@ -4,7 +4,7 @@
 use vision_core::flow::{self, FlowParams, FlowStats, FlowWorkspace, NoFlowReason};
 use vision_core::{
     AttitudeSource, CameraModel, CameraMount, DetectorParams, DetectorWorkspace, Gray8View, LineObservation,
-    LineTarget, NoTargetReason, PoseError, PoseParams, PoseSolution, Rgb8View, detect_line, solve_pose,
+    LineTarget, NoTargetReason, PoseError, PoseParams, PoseSolution, Rgb8View, solve_pose,
 };
 
 /// Which pose solver to run.
@@ -150,7 +150,17 @@ impl LineVision {
 
     /// Detects the line.
     pub fn detect(&mut self, img: &Rgb8View<'_>) -> Result<LineObservation, NoTargetReason> {
-        detect_line(img, &self.camera, &self.detector, &mut self.workspace)
+        self.detect_timed(img, None)
+    }
+
+    /// Detects the line in the frame of a rolling-shutter camera turning during its readout
+    /// ([`vision_core::detect_line_timed`]).
+    pub fn detect_timed(
+        &mut self,
+        img: &Rgb8View<'_>,
+        timing: Option<&vision_core::RowTiming>,
+    ) -> Result<LineObservation, NoTargetReason> {
+        vision_core::detect_line_timed(img, &self.camera, &self.detector, &mut self.workspace, timing)
     }
 
     /// Detects the line and solves the pose.
@@ -160,7 +170,18 @@ impl LineVision {
         source: AttitudeSource,
         method: PoseMethod,
     ) -> Result<FrameResult, NoPose> {
-        let observation = self.detect(img).map_err(NoPose::Detection)?;
+        self.pose_timed(img, source, method, None)
+    }
+
+    /// [`Self::pose`] for a rolling-shutter camera turning during its readout.
+    pub fn pose_timed(
+        &mut self,
+        img: &Rgb8View<'_>,
+        source: AttitudeSource,
+        method: PoseMethod,
+        timing: Option<&vision_core::RowTiming>,
+    ) -> Result<FrameResult, NoPose> {
+        let observation = self.detect_timed(img, timing).map_err(NoPose::Detection)?;
         let pose =
             solve_pose(&observation, &self.camera, &self.target, &self.mount, source, &method.params())
                 .map_err(NoPose::Solver)?;

@@ -63,6 +63,27 @@ fn bench(c: &mut Criterion) {
     g.bench_function("srgb_blur_1.5px", |b| {
         b.iter(|| renderer.render(black_box(&r_wc), Vec3::new(1.15, 1.45, 0.8), &blurred))
     });
+    // The other camera effects, each on its own, moving at the sweep's speed and turning slowly.
+    let moving = sim_host::render::RenderSettings {
+        velocity_m_s: [0.25, 0.0, 0.0],
+        rates_rad_s: [0.1, 0.1, 0.1],
+        ..settings
+    };
+    type Change = fn(&mut Scenario);
+    let variants: [(&str, Change); 4] = [
+        ("lens_k1_-0.3", |s| s.forward_camera.distortion = [-0.3, 0.08, 0.0, 0.0, 0.0]),
+        ("rolling_shutter_30us", |s| s.forward_camera.line_delay_s = 30e-6),
+        ("motion_blur_10ms", |s| s.forward_camera.exposure_time_s = 0.01),
+        ("jpeg_85", |s| s.forward_camera.jpeg_quality = 85),
+    ];
+    for (name, change) in variants {
+        let mut sc = scenario.clone();
+        change(&mut sc);
+        let r = ForwardRenderer::new(&sc).expect("renderer");
+        g.bench_function(name, |b| {
+            b.iter(|| r.render(black_box(&r_wc), Vec3::new(1.15, 1.45, 0.8), &moving))
+        });
+    }
     g.finish();
 }
 

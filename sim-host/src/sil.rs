@@ -667,6 +667,9 @@ impl Sil {
                     Some((r, mut settings)) => {
                         let mut s = self.seed ^ 0xF0F0_0000_0000_0000 ^ self.frame_index;
                         settings.seed = splitmix64(&mut s);
+                        // The camera's motion, for the motion blur and the rolling shutter.
+                        (settings.velocity_m_s, settings.rates_rad_s) =
+                            self.camera_motion(self.scenario.forward_camera_mount().offset_body_m);
                         let img = r.render(&r_wc, center, &settings);
                         let observation = match self.ports.as_mut() {
                             Some(p) => {
@@ -681,7 +684,30 @@ impl Sil {
                                 }
                                 None
                             }
-                            None => self.stats.ground_no_target.record(self.vision.detect(&img)),
+                            None => {
+                                // A rolling shutter: the station corrects the rows with the vehicle's rates from
+                                // its last telemetry.
+                                let c = &self.scenario.forward_camera;
+                                let timing = (c.line_delay_s > 0.0).then(|| {
+                                    let rates = self
+                                        .station_telemetry
+                                        .map(|t| t.estimate.rates_rad_s)
+                                        .unwrap_or(Vec3::ZERO);
+                                    vision_core::RowTiming {
+                                        rates_cam_rad_s: self
+                                            .scenario
+                                            .forward_camera_mount()
+                                            .body_from_camera
+                                            .transpose()
+                                            .mul_vec(rates),
+                                        line_delay_s: c.line_delay_s as f32,
+                                        reference_row: (c.height_px as f32 - 1.0) / 2.0,
+                                    }
+                                });
+                                self.stats
+                                    .ground_no_target
+                                    .record(self.vision.detect_timed(&img, timing.as_ref()))
+                            }
                         };
                         if let Some(enc) = self.frame_encoding() {
                             let f = crate::flightlog::CameraFrame::rgb(
@@ -746,6 +772,19 @@ impl Sil {
         self.frame_index += 1;
         self.stats.frames += 1;
         self.next_frame_us = ((self.frame_index as f64) * 1e6 / lat.rate_hz).round() as u64;
+    }
+
+    /// The velocity (world) of a point at `offset_body_m` on the vehicle and the vehicle's angular velocity
+    /// in the world frame.
+    fn camera_motion(&self, offset_body_m: Vec3) -> ([f64; 3], [f64; 3]) {
+        let st = &self.quad.state;
+        let r = quat_to_mat(st.q);
+        let off = offset_body_m.to_array().map(|v| v as f64);
+        let mv = |v: [f64; 3]| [0, 1, 2].map(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2]);
+        let w = st.w;
+        let wxr =
+            mv([w[1] * off[2] - w[2] * off[1], w[2] * off[0] - w[0] * off[2], w[0] * off[1] - w[1] * off[0]]);
+        ([0, 1, 2].map(|k| st.v[k] + wxr[k]), mv(w))
     }
 
     fn down_pose(&self) -> (DownPose, CamPose) {

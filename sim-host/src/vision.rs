@@ -80,6 +80,26 @@ impl GroundVision {
         self.inner.pose(&img.view(), source, method)
     }
 
+    /// [`Self::pose`] for a rolling-shutter camera turning during its readout.
+    pub fn pose_timed(
+        &mut self,
+        img: &RgbImage,
+        source: AttitudeSource,
+        method: PoseMethod,
+        timing: Option<&vision_core::RowTiming>,
+    ) -> Result<FrameResult, NoPose> {
+        self.inner.pose_timed(&img.view(), source, method, timing)
+    }
+
+    /// Detects the line in the frame of a rolling-shutter camera turning during its readout.
+    pub fn detect_timed(
+        &mut self,
+        img: &RgbImage,
+        timing: Option<&vision_core::RowTiming>,
+    ) -> Result<LineObservation, NoTargetReason> {
+        self.inner.detect_timed(&img.view(), timing)
+    }
+
     /// The scenario.
     pub fn scenario(&self) -> &Scenario {
         &self.scenario

@@ -19,6 +19,22 @@ pub struct EnvelopeFrame {
     pub light_gradient_per_m: [f64; 2],
     /// Sensor noise seed.
     pub seed: u64,
+    /// The camera's velocity (world, m/s) and angular velocity (world frame, rad/s) at the frame's time, for
+    /// motion blur and rolling shutter (zero in [`envelope_frames`]; see [`with_motion`]).
+    pub velocity_m_s: [f64; 3],
+    /// See `velocity_m_s`.
+    pub rates_rad_s: [f64; 3],
+}
+
+/// The frames moving: each component of the velocity uniform within `+-speed` (m/s) and of the angular
+/// velocity within `+-rate` (rad/s).
+pub fn with_motion(mut frames: Vec<EnvelopeFrame>, seed: u64, speed: f64, rate: f64) -> Vec<EnvelopeFrame> {
+    let mut r = SimRng::stream(seed, "envelope-motion");
+    for f in &mut frames {
+        f.velocity_m_s = [0; 3].map(|_| r.range(-speed, speed));
+        f.rates_rad_s = [0; 3].map(|_| r.range(-rate, rate));
+    }
+    frames
 }
 
 /// Frames spread over the flight envelope of the vision issue: distance 1.0-1.6 m, height 0.6-1.0 m, x over
@@ -41,6 +57,8 @@ pub fn envelope_frames(n: usize, seed: u64) -> Vec<EnvelopeFrame> {
             light_gain: r.range(0.5, 1.3),
             light_gradient_per_m: [r.range(-0.25, 0.25), r.range(-0.4, 0.4)],
             seed: r.next_u64(),
+            velocity_m_s: [0.0; 3],
+            rates_rad_s: [0.0; 3],
         })
         .collect()
 }

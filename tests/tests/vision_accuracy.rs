@@ -6,7 +6,7 @@ use sim_host::imageio::RgbImage;
 use sim_host::render::ForwardRenderer;
 use sim_host::rng::SimRng;
 use sim_host::vision::{GroundVision, PoseMethod};
-use system_tests::{EnvelopeFrame, both_ends_in_view, envelope_frames, median_p95};
+use system_tests::{EnvelopeFrame, both_ends_in_view, envelope_frames, median_p95, with_motion};
 use vision_core::AttitudeSource;
 
 /// Per-coordinate errors of one solver over a set of frames.
@@ -91,6 +91,16 @@ fn evaluate_with(
     evaluate_through(scenario, frames, blur_px, source, |_, img| img)
 }
 
+/// As [`evaluate_with`], the detector told the rolling shutter's timing and the camera's true rates (as the
+/// station knows them from the vehicle's gyro).
+fn evaluate_corrected(
+    scenario: &Scenario,
+    frames: &[EnvelopeFrame],
+    source: impl Fn(&EnvelopeFrame, &mut SimRng) -> AttitudeSource,
+) -> Errors {
+    evaluate_inner(scenario, frames, 0.0, source, |_, img| img, true)
+}
+
 /// As [`evaluate_with`], each frame passed through `deliver` (the frame's index, the rendered image) before
 /// the vision sees it: compression, a camera's transport.
 fn evaluate_through(
@@ -99,6 +109,17 @@ fn evaluate_through(
     blur_px: f64,
     source: impl Fn(&EnvelopeFrame, &mut SimRng) -> AttitudeSource,
     deliver: impl Fn(usize, RgbImage) -> RgbImage,
+) -> Errors {
+    evaluate_inner(scenario, frames, blur_px, source, deliver, false)
+}
+
+fn evaluate_inner(
+    scenario: &Scenario,
+    frames: &[EnvelopeFrame],
+    blur_px: f64,
+    source: impl Fn(&EnvelopeFrame, &mut SimRng) -> AttitudeSource,
+    deliver: impl Fn(usize, RgbImage) -> RgbImage,
+    tell_timing: bool,
 ) -> Errors {
     let scenario = scenario.clone();
     let renderer = ForwardRenderer::new(&scenario).unwrap();
@@ -113,10 +134,19 @@ fn evaluate_through(
         settings.light_gradient_per_m = f.light_gradient_per_m;
         settings.seed = f.seed;
         settings.blur_sigma_px = blur_px;
+        (settings.velocity_m_s, settings.rates_rad_s) = (f.velocity_m_s, f.rates_rad_s);
         let r_wc = f.attitude.world_from_body().mul_mat(&mount.body_from_camera);
         let img = deliver(i, renderer.render(&r_wc, f.position, &settings));
         let src = source(f, &mut noise);
-        let Ok(r) = vision.pose(&img, src, PoseMethod::Refined) else {
+        let timing = tell_timing.then(|| {
+            let w = Vec3::new(f.rates_rad_s[0] as f32, f.rates_rad_s[1] as f32, f.rates_rad_s[2] as f32);
+            vision_core::RowTiming {
+                rates_cam_rad_s: r_wc.transpose().mul_vec(w),
+                line_delay_s: scenario.forward_camera.line_delay_s as f32,
+                reference_row: (scenario.forward_camera.height_px as f32 - 1.0) / 2.0,
+            }
+        });
+        let Ok(r) = vision.pose_timed(&img, src, PoseMethod::Refined, timing.as_ref()) else {
             e.no_pose += 1;
             continue;
         };
@@ -372,5 +402,39 @@ fn camera_effects_not_yet_handled() {
     }
     for (name, e) in &effects {
         e.assert_bounds(name);
+    }
+}
+
+#[test]
+fn a_rolling_shutter_corrected_with_the_gyro_rates() {
+    // 30 us per row (a 14 ms readout) while the vehicle moves at up to 0.3 m/s and turns at up to 0.3 rad/s
+    // per axis. Measured on these 120 frames: uncorrected, yaw median 0.100 deg and x / y coverage 73 / 74 %
+    // (0.077 deg and 88 / 90 % with a global shutter); with the detector told the rates, 0.077 deg and 82 /
+    // 83 % (the translation during the readout is not corrected).
+    let frames = with_motion(envelope_frames(120, 77), 3, 0.3, 0.3);
+    let rolling = paper_with(|s| s.forward_camera.line_delay_s = 30e-6);
+    let raw = evaluate_with(&rolling, &frames, 0.0, imu);
+    raw.report("rolling shutter 30 us, uncorrected");
+    let corrected = evaluate_corrected(&rolling, &frames, imu);
+    corrected.report("rolling shutter 30 us, corrected with the rates");
+    assert_eq!(corrected.no_pose, 0);
+    corrected.assert_bounds("rolling shutter, corrected");
+    let yaw = |e: &Errors| median_p95(&e.yaw_deg).0;
+    assert!(yaw(&corrected) < 0.85 * yaw(&raw), "yaw median {} against {}", yaw(&corrected), yaw(&raw));
+    let (c, r) = (corrected.coverage(), raw.coverage());
+    assert!(c[0] > r[0] + 0.05 && c[1] > r[1] + 0.05, "coverage {c:?} against {r:?}");
+}
+
+#[test]
+fn motion_blur_at_flight_speeds() {
+    // A 10 ms exposure while moving at up to 0.3 m/s and turning at up to 0.3 rad/s per axis (the blur
+    // reaches 2-3 px): measured x / y / z p95 7.0 / 7.8 / 18.2 mm, coverage 92 / 90 / 97 %.
+    let frames = with_motion(envelope_frames(120, 77), 3, 0.3, 0.3);
+    let e = evaluate_with(&paper_with(|s| s.forward_camera.exposure_time_s = 0.01), &frames, 0.0, imu);
+    e.report("exposure 10 ms, moving");
+    assert_eq!(e.no_pose, 0);
+    e.assert_bounds("motion blur");
+    for (k, c) in e.coverage().iter().enumerate() {
+        assert!(*c >= 0.8, "{}: 2-sigma coverage {c}", ["x", "y", "z"][k]);
     }
 }

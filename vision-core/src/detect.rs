@@ -320,12 +320,50 @@ impl RedTest {
     }
 }
 
+/// A rolling shutter's timing and the camera's rotation while it reads the frame out.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RowTiming {
+    /// The camera's angular velocity in its own frame (rad/s), e.g. the vehicle's gyro rates rotated by the
+    /// mount.
+    pub rates_cam_rad_s: geometry::Vec3,
+    /// The delay between the exposures of consecutive rows (s).
+    pub line_delay_s: f32,
+    /// The row exposed at the frame's time (the middle one, `(height - 1) / 2`, for the simulator's camera).
+    pub reference_row: f32,
+}
+
+impl RowTiming {
+    /// Where a point seen in row `row` at normalised `n` would have been seen at the frame's time: the camera
+    /// had turned by `exp(w tau)` by the row's time `tau`, so the direction then is `exp(w tau)` times the
+    /// direction seen (to first order in the few milliseconds of a readout, exact for the rotation).
+    pub fn to_frame_time(&self, n: Vec2, row: f32) -> Vec2 {
+        let tau = (row - self.reference_row) * self.line_delay_s;
+        let r = geometry::Quat::from_rotvec(self.rates_cam_rad_s * tau).to_mat3();
+        let d = r.mul_vec(geometry::Vec3::new(n.x, n.y, 1.0));
+        if d.z > 1e-6 { Vec2::new(d.x / d.z, d.y / d.z) } else { n }
+    }
+}
+
 /// Finds the line in `image` and measures its edges. `camera` must describe the image (same size).
 pub fn detect_line(
     image: &Rgb8View<'_>,
     camera: &CameraModel,
     params: &DetectorParams,
     ws: &mut DetectorWorkspace,
+) -> Result<LineObservation, NoTargetReason> {
+    detect_line_timed(image, camera, params, ws, None)
+}
+
+/// [`detect_line`] for a rolling-shutter camera that turns during the readout: every edge point is moved to
+/// where it would have been seen at the frame's time before the line fits (the camera's translation during
+/// the readout is not corrected: a few millimetres at flight speeds).
+pub fn detect_line_timed(
+    image: &Rgb8View<'_>,
+    camera: &CameraModel,
+    params: &DetectorParams,
+    ws: &mut DetectorWorkspace,
+    timing: Option<&RowTiming>,
 ) -> Result<LineObservation, NoTargetReason> {
     ws.diag = DetectionDiagnostics::default();
     if ws.linear_for != Some(params.tone_curve) {
@@ -375,7 +413,7 @@ pub fn detect_line(
     }
     let mut first_err = NoTargetReason::NoLineShapedRegion;
     for (i, &k) in cand[..n_cand].iter().enumerate() {
-        match measure_band(image, camera, params, ws, k) {
+        match measure_band(image, camera, params, ws, k, timing) {
             Ok(obs) => return Ok(obs),
             Err(e) => {
                 if i == 0 {
@@ -713,7 +751,15 @@ fn measure_band(
     params: &DetectorParams,
     ws: &mut DetectorWorkspace,
     k: usize,
+    timing: Option<&RowTiming>,
 ) -> Result<LineObservation, NoTargetReason> {
+    let normalized = |p: Vec2| {
+        let n = camera.pixel_to_normalized(p);
+        match timing {
+            Some(t) => t.to_frame_time(n, p.y),
+            None => n,
+        }
+    };
     let comp = ws.comps[k];
     let (w, h) = (image.width() as i32, image.height() as i32);
     let step = params.row_step.clamp(1, 4) as i32;
@@ -799,7 +845,7 @@ fn measure_band(
                 probe.measure(Profile::BottomEdge, u, (b, b + step + 1), mid, h)
             };
             if let Some(v) = v {
-                ws.pts[n] = camera.pixel_to_normalized(Vec2::new(u as f32, v));
+                ws.pts[n] = normalized(Vec2::new(u as f32, v));
                 n += 1;
             }
         }
@@ -866,7 +912,7 @@ fn measure_band(
             if let Some(u) = got
                 && n < MAX_DETECT_DIM
             {
-                ws.pts[n] = camera.pixel_to_normalized(Vec2::new(u, v as f32));
+                ws.pts[n] = normalized(Vec2::new(u, v as f32));
                 n += 1;
             }
         }
@@ -985,6 +1031,25 @@ mod tests {
         }
         assert!(diag.long_edge_points[0] > 400 && diag.long_edge_rms_px[0] < 0.01, "{diag:?}");
         assert!((diag.fill_ratio - 1.0).abs() < 0.1);
+    }
+
+    #[test]
+    fn row_timing_moves_points_to_the_frame_time() {
+        // Turning about the camera's y axis at 1 rad/s, a row read 10 ms after the reference one saw the
+        // scene 10 mrad further turned: the correction moves its points by that much in x; the reference row
+        // and a still camera are left as they are.
+        let t = RowTiming {
+            rates_cam_rad_s: geometry::Vec3::new(0.0, 1.0, 0.0),
+            line_delay_s: 1e-4,
+            reference_row: 200.0,
+        };
+        let n = Vec2::new(0.1, -0.05);
+        assert!((t.to_frame_time(n, 200.0) - n).norm() < 1e-7);
+        let moved = t.to_frame_time(n, 300.0);
+        assert!((moved.x - n.x - 0.01 * (1.0 + n.x * n.x)).abs() < 1e-4, "{moved:?}");
+        assert!((moved.y - n.y - 0.01 * n.x * n.y).abs() < 1e-4, "{moved:?}");
+        let still = RowTiming { rates_cam_rad_s: geometry::Vec3::ZERO, ..t };
+        assert!((still.to_frame_time(n, 450.0) - n).norm() < 1e-7);
     }
 
     #[test]

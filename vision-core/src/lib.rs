@@ -26,7 +26,10 @@ pub mod target;
 pub mod tone;
 
 pub use camera::{CameraModel, Distortion};
-pub use detect::{DetectionDiagnostics, DetectorParams, DetectorWorkspace, NoTargetReason, detect_line};
+pub use detect::{
+    DetectionDiagnostics, DetectorParams, DetectorWorkspace, NoTargetReason, RowTiming, detect_line,
+    detect_line_timed,
+};
 pub use image::{Gray8View, Rgb8View};
 pub use observation::{EdgeStats, LineObservation};
 pub use pose::{

@@ -77,6 +77,12 @@ pub struct RenderSettings {
     /// This frame's exposure relative to the camera's (times the auto exposure's factor when the scenario's
     /// `exposure_step` is not zero).
     pub exposure_gain: f64,
+    /// The camera centre's velocity (world, m/s) and the camera's angular velocity (world frame, rad/s) at
+    /// the frame's time: with the scenario's `exposure_time_s` they blur the frame, with its `line_delay_s`
+    /// each row sees the scene from where the camera is when that row is exposed (a rolling shutter).
+    pub velocity_m_s: [f64; 3],
+    /// See `velocity_m_s`.
+    pub rates_rad_s: [f64; 3],
     /// Seed of this frame's sensor noise (and auto exposure).
     pub seed: u64,
 }
@@ -108,6 +114,37 @@ pub struct ForwardRenderer {
     exposure_step: f64,
     /// JPEG quality of the delivered frames (0: uncompressed).
     jpeg_quality: u8,
+    /// Exposure time (s; motion blur when the camera moves).
+    exposure_time_s: f64,
+    /// Rolling shutter: the delay between the exposures of consecutive rows (s; 0 for a global shutter).
+    line_delay_s: f64,
+}
+
+/// Where the camera is for one row (or the whole frame): the ray directions' basis, the centre and the
+/// painted shapes' images with their row ranges.
+struct View {
+    ex: [f64; 3],
+    ey: [f64; 3],
+    ez: [f64; 3],
+    du: [f32; 3],
+    cf: [f32; 3],
+    polys: Vec<(Poly, [f32; 3], i64, i64)>,
+}
+
+/// The rotation `exp([w] t)` (Rodrigues).
+fn rotation_exp(w: [f64; 3], t: f64) -> [[f64; 3]; 3] {
+    let v = w.map(|x| x * t);
+    let th = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let k = [[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]];
+    let (a, b) = if th < 1e-9 { (1.0, 0.5) } else { (th.sin() / th, (1.0 - th.cos()) / (th * th)) };
+    let mut r = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            let kk: f64 = (0..3).map(|m| k[i][m] * k[m][j]).sum();
+            r[i][j] = f64::from(u8::from(i == j)) + a * k[i][j] + b * kk;
+        }
+    }
+    r
 }
 
 /// Standard-normal noise is stored as `round(32 n)` in an `i8` (clipped at +-3.97 sigma).
@@ -262,6 +299,8 @@ impl ForwardRenderer {
             response: Response::new(c.response),
             vignette: super::sensor::vignette(c),
             exposure_step: c.exposure_step,
+            exposure_time_s: c.exposure_time_s,
+            line_delay_s: c.line_delay_s,
             // Validated to 0..=100.
             jpeg_quality: c.jpeg_quality.clamp(0, 100) as u8,
             defaults: RenderSettings {
@@ -270,6 +309,8 @@ impl ForwardRenderer {
                 noise_sigma: c.noise_sigma,
                 blur_sigma_px: c.blur_sigma_px,
                 exposure_gain: 1.0,
+                velocity_m_s: [0.0; 3],
+                rates_rad_s: [0.0; 3],
                 seed: 0,
             },
         })
@@ -288,14 +329,31 @@ impl ForwardRenderer {
     /// Renders the view of a camera with world-from-camera rotation `r_wc` and centre `center` (world).
     pub fn render(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings) -> RgbImage {
         let mut img = RgbImage::new(self.width, self.height);
-        if self.lens.is_none() && settings.blur_sigma_px <= 0.0 {
+        let subframes = self.subframes(center, settings);
+        if self.lens.is_none() && settings.blur_sigma_px <= 0.0 && subframes == 1 {
             self.rows(r_wc, center, settings, Rows::Encoded(&mut img.data));
         } else {
-            // Through the lens (the resampled pinhole image) or the optics' blur: the whole frame's linear
-            // values first, then the sensor.
-            let mut linear = match &self.lens {
-                Some(lens) => lens.render_linear(r_wc, center, settings),
-                None => self.linear_image(r_wc, center, settings),
+            // Through the lens (the resampled pinhole image), the optics' blur or the motion during the
+            // exposure: the whole frame's linear values first (the mean of the sub-frames' views), then the
+            // sensor.
+            let view = |tau: f64| match &self.lens {
+                Some(lens) => lens.render_linear(r_wc, center, settings, tau),
+                None => self.linear_image_at(r_wc, center, settings, tau),
+            };
+            let mut linear = if subframes == 1 {
+                view(0.0)
+            } else {
+                let t = self.exposure_time_s;
+                let mut sum = vec![0.0f32; 3 * self.width * self.height];
+                for k in 0..subframes {
+                    let tau = ((k as f64 + 0.5) / subframes as f64 - 0.5) * t;
+                    for (a, b) in sum.iter_mut().zip(view(tau)) {
+                        *a += b;
+                    }
+                }
+                let inv = 1.0 / subframes as f32;
+                sum.iter_mut().for_each(|a| *a *= inv);
+                sum
             };
             if let Some(v) = &self.vignette {
                 for (px, g) in linear.chunks_exact_mut(3).zip(v) {
@@ -314,6 +372,20 @@ impl ForwardRenderer {
         img
     }
 
+    /// Sub-frames of a motion-blurred exposure: enough that consecutive views are at most half a pixel apart
+    /// (the image moves by about f (|v| / d + 1.5 |w|) px/s at distance d from the wall), at most 16; 1 without
+    /// an exposure time or motion.
+    fn subframes(&self, center: Vec3, settings: &RenderSettings) -> usize {
+        let norm = |v: [f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let (speed, rate) = (norm(settings.velocity_m_s), norm(settings.rates_rad_s));
+        if self.exposure_time_s <= 0.0 || speed + rate == 0.0 {
+            return 1;
+        }
+        let d = (center.y as f64).abs().max(0.2);
+        let px = self.exposure_time_s * self.fx.max(self.fy) * (speed / d + 1.5 * rate);
+        ((px / 0.5).ceil() as usize).clamp(1, 16)
+    }
+
     /// The auto exposure's factor for a frame (1 without it): uniform in `1 +- exposure_step`, drawn from the
     /// frame's seed.
     fn auto_exposure(&self, seed: u64) -> f32 {
@@ -326,26 +398,61 @@ impl ForwardRenderer {
     }
 
     /// The light on each pixel (3 values per pixel, interleaved, on the 0-255 scale of the sensor's full
-    /// scale), before blur, clipping, tone curve, noise and quantisation.
-    pub(super) fn linear_image(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings) -> Vec<f32> {
+    /// scale), before blur, clipping, tone curve, noise and quantisation, `tau` seconds after the frame's time
+    /// (rows timed by the rolling shutter from there).
+    pub(super) fn linear_image_at(
+        &self,
+        r_wc: &Mat3,
+        center: Vec3,
+        settings: &RenderSettings,
+        tau: f64,
+    ) -> Vec<f32> {
         let mut linear = vec![0.0f32; 3 * self.width * self.height];
-        self.rows(r_wc, center, settings, Rows::Linear(&mut linear));
+        self.rows_at(r_wc, center, settings, tau, Rows::Linear(&mut linear));
         linear
     }
 
     /// Renders every row into `out`: the sensor's 8-bit output, or the linear values.
     fn rows(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings, out: Rows<'_>) {
-        let rw = to64(r_wc);
-        let c = [center.x as f64, center.y as f64, center.z as f64];
-        let polys: Vec<(Poly, [f32; 3], i64, i64)> = self
+        self.rows_at(r_wc, center, settings, 0.0, out)
+    }
+
+    /// The camera's pose `tau` seconds after the frame's time, moving as `settings` says.
+    fn pose_at(&self, rw: &[[f64; 3]; 3], c: [f64; 3], settings: &RenderSettings, tau: f64) -> View {
+        let dr = rotation_exp(settings.rates_rad_s, tau);
+        let mut r = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                r[i][j] = (0..3).map(|k| dr[i][k] * rw[k][j]).sum();
+            }
+        }
+        self.view(&r, [0, 1, 2].map(|k| c[k] + settings.velocity_m_s[k] * tau))
+    }
+
+    fn view(&self, rw: &[[f64; 3]; 3], c: [f64; 3]) -> View {
+        let polys = self
             .painted
             .iter()
             .filter_map(|(pts, albedo)| {
-                let p = self.wall_polygon(pts, &rw, c)?;
+                let p = self.wall_polygon(pts, rw, c)?;
                 let (_, y0, _, y1) = p.bounds();
                 Some((p, *albedo, (y0 + 0.5).floor() as i64, (y1 - 0.5).ceil() as i64))
             })
             .collect();
+        let col = |k: usize| [rw[0][k], rw[1][k], rw[2][k]];
+        let (ex, ey, ez) = (col(0), col(1), col(2));
+        let du = [ex[0] / self.fx, ex[1] / self.fx, ex[2] / self.fx].map(|v| v as f32);
+        View { ex, ey, ez, du, cf: c.map(|v| v as f32), polys }
+    }
+
+    /// [`Self::rows`] at `tau0` seconds after the frame's time (a sub-frame of a motion-blurred exposure).
+    fn rows_at(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings, tau0: f64, out: Rows<'_>) {
+        let rw = to64(r_wc);
+        let c = [center.x as f64, center.y as f64, center.z as f64];
+        let frame = self.pose_at(&rw, c, settings, tau0);
+        let moving = settings.velocity_m_s.iter().chain(&settings.rates_rad_s).any(|v| *v != 0.0);
+        let rolling = self.line_delay_s > 0.0 && moving;
+        let mid_row = (self.height as f64 - 1.0) / 2.0;
         let (w, h) = (self.width, self.height);
         let scale = 255.0 * self.exposure * settings.exposure_gain as f32 * self.auto_exposure(settings.seed);
         let vignette = match (&out, &self.vignette) {
@@ -354,10 +461,6 @@ impl ForwardRenderer {
         };
         let (g0, [gx, gz]) = (settings.light_gain as f32, settings.light_gradient_per_m.map(|v| v as f32));
         let (lcx, lcz) = (self.line_center[0] as f32, self.line_center[2] as f32);
-        let cf = c.map(|v| v as f32);
-        let col = |k: usize| [rw[0][k], rw[1][k], rw[2][k]];
-        let (ex, ey, ez) = (col(0), col(1), col(2));
-        let du = [ex[0] / self.fx, ex[1] / self.fx, ex[2] / self.fx].map(|v| v as f32);
         let noise = self.noise_block(settings.seed);
         let sigma = settings.noise_sigma as f32 / NOISE_SCALE;
         let st = &self.stack;
@@ -382,13 +485,23 @@ impl ForwardRenderer {
                 mut cov_sum,
                 mut paint,
             } = std::mem::replace(sc, RowScratch::empty());
+            // With a rolling shutter this row sees the scene from where the camera is when it is exposed
+            // (rows are timed from the middle one).
+            let local;
+            let vw = if rolling {
+                local = self.pose_at(&rw, c, settings, tau0 + (v as f64 - mid_row) * self.line_delay_s);
+                &local
+            } else {
+                &frame
+            };
+            let View { ex, ey, ez, du, cf, ref polys } = *vw;
             let yn = (v as f64 - self.cy) / self.fy;
             let xn0 = -self.cx / self.fx;
             let d0 = [0, 1, 2].map(|k| (ex[k] * xn0 + ey[k] * yn + ez[k]) as f32);
             // Paint coverage of this row (exact box-filter areas; shapes are assumed not to overlap). Most rows
             // have none: they take the plain shading path below.
             let mut painted_row = false;
-            for (p, albedo, y0, y1) in &polys {
+            for (p, albedo, y0, y1) in polys {
                 if (v as i64) < *y0 || (v as i64) > *y1 {
                     continue;
                 }
@@ -673,6 +786,80 @@ mod tests {
         let mean_abs = diff.iter().map(|d| d.abs() as f64).sum::<f64>() / diff.len() as f64;
         // Changed, but by a few grey levels on average (the band's edges and the texture).
         assert!(mean_abs > 0.2 && mean_abs < 4.0, "{mean_abs}");
+    }
+
+    /// The column of a vertical blue bar's centre in row `v` (blue minus red weighted, noise-free frames).
+    fn bar_column(img: &RgbImage, v: usize) -> f64 {
+        let (mut s, mut su) = (0.0, 0.0);
+        for u in 0..img.width {
+            let p = &img.data[3 * (v * img.width + u)..3 * (v * img.width + u) + 3];
+            let b = (p[2] as f64 - p[0] as f64).max(0.0);
+            s += b;
+            su += b * u as f64;
+        }
+        su / s
+    }
+
+    #[test]
+    fn a_rolling_shutter_slants_what_moves_and_motion_blurs() {
+        // A blue bar from the floor to 2 m on the wall, the camera moving along x at 1 m/s, 1.3 m from the
+        // wall: the image moves by f v / d = 246 px/s. With 30 us per row, rows 40 and 440 are exposed 12 ms
+        // apart: the bar is 2.95 px further along in one than in the other. Without the rolling shutter, or
+        // without motion, the bar is straight.
+        let mut s = crate::Scenario::paper();
+        s.scene.shapes.push(crate::scenario::WallShape::Polygon {
+            points_m: vec![[1.10, 0.0], [1.20, 0.0], [1.20, 2.0], [1.10, 2.0]],
+            albedo_rgb: [0.1, 0.1, 0.8],
+        });
+        s.forward_camera.response = vision_core::ToneCurve::Linear;
+        let mount = s.forward_camera_mount();
+        let r_wc = geometry::frames::Attitude::default().world_from_body().mul_mat(&mount.body_from_camera);
+        let centre = Vec3::new(1.15, 1.3, 1.0);
+        let frame = |s: &crate::Scenario, velocity: [f64; 3]| {
+            let r = ForwardRenderer::new(s).unwrap();
+            let mut st = r.default_settings();
+            (st.noise_sigma, st.velocity_m_s) = (0.0, velocity);
+            r.render(&r_wc, centre, &st)
+        };
+        let slant = |img: &RgbImage| bar_column(img, 440) - bar_column(img, 40);
+        let still = frame(&s, [0.0; 3]);
+        assert!(slant(&still).abs() < 0.01, "{}", slant(&still));
+        assert_eq!(frame(&s, [1.0, 0.0, 0.0]), still, "a global shutter without exposure time");
+        s.forward_camera.line_delay_s = 30e-6;
+        assert_eq!(frame(&s, [0.0; 3]), still, "no motion");
+        let moving = frame(&s, [1.0, 0.0, 0.0]);
+        let expected = 320.0 * 1.0 / 1.3 * 400.0 * 30e-6;
+        // Facing the wall (-y), the image's right is the world's -x: moving +x, the scene moves right in the
+        // image, the later rows further.
+        assert!((slant(&moving) - expected).abs() < 0.05 * expected, "{} vs {expected}", slant(&moving));
+        // Rows are timed from the middle one: row 100 is exposed 4.2 ms before the frame's time, row 380 as
+        // much after.
+        for v in [100usize, 380] {
+            let want = 320.0 / 1.3 * (v as f64 - 239.5) * 30e-6;
+            let got = bar_column(&moving, v) - bar_column(&still, v);
+            assert!((got - want).abs() < 0.05, "row {v}: {got} px, expected {want}");
+        }
+        // Motion blur: a 10 ms exposure at 1 m/s smears the bar by 2.5 px; its centre stays, its edges soften.
+        s.forward_camera.line_delay_s = 0.0;
+        s.forward_camera.exposure_time_s = 0.01;
+        let blurred = frame(&s, [1.0, 0.0, 0.0]);
+        assert!((bar_column(&blurred, 100) - bar_column(&still, 100)).abs() < 0.05);
+        // Partly covered pixels of row 100: blue minus red between the wall's (below 0) and the bar's (178).
+        let edge = |img: &RgbImage| {
+            (0..img.width)
+                .filter(|&u| {
+                    let p = &img.data[3 * (100 * img.width + u)..3 * (100 * img.width + u) + 3];
+                    (10..168).contains(&(p[2] as i32 - p[0] as i32))
+                })
+                .count()
+        };
+        // Measured: 4 partly covered pixels against 2.
+        assert!(
+            edge(&blurred) >= 2 * edge(&still) && edge(&still) > 0,
+            "{} vs {}",
+            edge(&blurred),
+            edge(&still)
+        );
     }
 
     #[test]

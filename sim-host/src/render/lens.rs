@@ -10,15 +10,27 @@ use super::forward::{ForwardRenderer, RenderSettings};
 use crate::scenario::Scenario;
 use anyhow::{Result, bail};
 use geometry::{Mat3, Vec2, Vec3};
+use rayon::prelude::*;
 
 /// How much finer than the distorted image the pinhole image is (per axis).
 const SUPERSAMPLE: f64 = 2.0;
 
+/// One bilinear sample of the pinhole image: the index of its top-left value and the weights across.
+#[derive(Clone, Copy)]
+struct Sample {
+    /// `3 (y0 w + x0)`, the first of the four pixels' values (interleaved RGB).
+    at: u32,
+    ax: f32,
+    ay: f32,
+}
+
 /// The pinhole renderer behind a distorted camera and where each distorted pixel's samples fall in it.
 pub(super) struct Lens {
     source: ForwardRenderer,
-    /// Per distorted pixel, row by row: four sample positions (x, y) in the pinhole image's pixels.
-    map: Vec<[f32; 8]>,
+    /// Per distorted pixel, row by row: its four samples in the pinhole image.
+    map: Vec<[Sample; 4]>,
+    /// The distorted image's width.
+    width: usize,
 }
 
 impl Lens {
@@ -73,61 +85,57 @@ impl Lens {
         pc.distortion = [0.0; 5];
         // Vignetting and compression happen in the distorted image (the outer renderer); the auto exposure
         // is the source's, once.
-        (pc.vignetting, pc.jpeg_quality) = (0.0, 0);
+        (pc.vignetting, pc.jpeg_quality, pc.exposure_time_s) = (0.0, 0, 0.0);
+        // Its rows are SUPERSAMPLE times finer: the same readout time over them.
+        pc.line_delay_s = c.line_delay_s / SUPERSAMPLE;
         let source = ForwardRenderer::new(&pinhole)?;
         let (fx, fy, cx, cy) = (fx as f32, fy as f32, cx as f32, cy as f32);
+        let (sw, sh) = source.size();
+        // Every sample lies at least two pixels inside the pinhole image (its size above), so its four
+        // neighbours are inside too; the clamps only guard the arithmetic.
+        let sample = |x: f32, y: f32| {
+            let (x0, y0) = (x.floor().clamp(0.0, sw as f32 - 2.0), y.floor().clamp(0.0, sh as f32 - 2.0));
+            Sample { at: (3 * (y0 as usize * sw + x0 as usize)) as u32, ax: x - x0, ay: y - y0 }
+        };
         let map = normalized
             .into_iter()
-            .map(|n| {
-                let mut m = [0.0f32; 8];
-                for k in 0..4 {
-                    (m[2 * k], m[2 * k + 1]) = (n[2 * k] * fx + cx, n[2 * k + 1] * fy + cy);
-                }
-                m
-            })
+            .map(|n| [0, 1, 2, 3].map(|k| sample(n[2 * k] * fx + cx, n[2 * k + 1] * fy + cy)))
             .collect();
-        Ok(Some(Self { source, map }))
+        Ok(Some(Self { source, map, width: w }))
     }
 
     /// The distorted image's linear values (3 per pixel, on the 0-255 scale, before blur, the sensor's
-    /// response and noise): the pinhole image's linear values, resampled.
-    pub(super) fn render_linear(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings) -> Vec<f32> {
-        let src = self.source.linear_image(r_wc, center, settings);
-        let (sw, sh) = self.source.size();
-        let mut out = Vec::with_capacity(3 * self.map.len());
-        for m in &self.map {
-            let mut acc = [0.0f32; 3];
-            for k in 0..4 {
-                let px = bilinear(&src, sw, sh, m[2 * k], m[2 * k + 1]);
-                for ch in 0..3 {
-                    acc[ch] += px[ch];
+    /// response and noise), `tau` seconds after the frame's time: the pinhole image's linear values, resampled.
+    /// The pinhole source keeps the scenario's rolling shutter, timed by its own rows: an approximation (its
+    /// rows are the undistorted ones), exact without distortion.
+    pub(super) fn render_linear(
+        &self,
+        r_wc: &Mat3,
+        center: Vec3,
+        settings: &RenderSettings,
+        tau: f64,
+    ) -> Vec<f32> {
+        let src = self.source.linear_image_at(r_wc, center, settings, tau);
+        let row = 3 * self.source.size().0;
+        let mut out = vec![0.0f32; 3 * self.map.len()];
+        // Rows on the thread pool (each output value is the same sum whatever the threads).
+        out.par_chunks_mut(3 * self.width).zip(self.map.par_chunks(self.width)).for_each(|(o, m)| {
+            for (px, samples) in o.chunks_exact_mut(3).zip(m) {
+                let mut acc = [0.0f32; 3];
+                for s in samples {
+                    let i = s.at as usize;
+                    let (top, bottom) = (&src[i..i + 6], &src[i + row..i + row + 6]);
+                    for ch in 0..3 {
+                        let t = top[ch] + s.ax * (top[3 + ch] - top[ch]);
+                        let b = bottom[ch] + s.ax * (bottom[3 + ch] - bottom[ch]);
+                        acc[ch] += t + s.ay * (b - t);
+                    }
                 }
+                px.copy_from_slice(&acc.map(|a| a * 0.25));
             }
-            out.extend(acc.map(|a| a * 0.25));
-        }
+        });
         out
     }
-}
-
-/// The value of an interleaved RGB image (`w` by `h`) at `(x, y)` (pixel centres at integers), bilinear,
-/// clamped at the border.
-fn bilinear(img: &[f32], w: usize, h: usize, x: f32, y: f32) -> [f32; 3] {
-    let (w, h) = (w as i64, h as i64);
-    let (x0, y0) = (x.floor(), y.floor());
-    let (ax, ay) = (x - x0, y - y0);
-    let at = |xi: i64, yi: i64| {
-        let i = 3 * (yi.clamp(0, h - 1) * w + xi.clamp(0, w - 1)) as usize;
-        [img[i], img[i + 1], img[i + 2]]
-    };
-    let (xi, yi) = (x0 as i64, y0 as i64);
-    let (p00, p10, p01, p11) = (at(xi, yi), at(xi + 1, yi), at(xi, yi + 1), at(xi + 1, yi + 1));
-    let mut out = [0.0; 3];
-    for ch in 0..3 {
-        let top = p00[ch] + ax * (p10[ch] - p00[ch]);
-        let bottom = p01[ch] + ax * (p11[ch] - p01[ch]);
-        out[ch] = top + ay * (bottom - top);
-    }
-    out
 }
 
 #[cfg(test)]

@@ -121,6 +121,10 @@ limits! {
     FORWARD_VIGNETTING = "forward_camera.vignetting" closed [0, 0.9] "";
     /// MJPEG as webcams send it (4:2:2 chroma); 0: uncompressed.
     FORWARD_JPEG_QUALITY = "forward_camera.jpeg_quality" closed [0, 100] "";
+    /// Motion blur: the frame integrates the views over this time.
+    FORWARD_EXPOSURE_TIME = "forward_camera.exposure_time_s" closed [0, 0.05] "s";
+    /// Rolling shutter: the delay between consecutive rows' exposures.
+    FORWARD_LINE_DELAY = "forward_camera.line_delay_s" closed [0, 0.0001] "s";
     FORWARD_RATE = "forward_camera.rate_hz" above [0, 200] "Hz";
     /// The estimator keeps 0.25 s of history.
     FORWARD_LATENCY = "forward_camera.latency_s" closed [0, 0.2] "s";

@@ -186,6 +186,14 @@ pub struct ForwardCameraConfig {
     /// JPEG quality of the delivered frames, 4:2:2 chroma as webcams' MJPEG (1-100; 0: uncompressed).
     #[serde(default)]
     pub jpeg_quality: i32,
+    /// Exposure time (s): the frame is the mean of the views over it while the vehicle moves (motion blur);
+    /// 0 for an instantaneous exposure.
+    #[serde(default)]
+    pub exposure_time_s: f64,
+    /// Rolling shutter: the delay between the exposures of consecutive rows (s; webcams 15-40 us); rows are
+    /// timed from the middle one, which is the frame's time. 0 for a global shutter.
+    #[serde(default)]
+    pub line_delay_s: f64,
     /// Frame rate (Hz).
     #[serde(default = "default_camera_rate")]
     pub rate_hz: f64,

@@ -63,6 +63,8 @@ impl Scenario {
             r(FORWARD_EXPOSURE_STEP, &[c.exposure_step]),
             r(FORWARD_VIGNETTING, &[c.vignetting]),
             r(FORWARD_JPEG_QUALITY, &[c.jpeg_quality as f64]),
+            r(FORWARD_EXPOSURE_TIME, &[c.exposure_time_s]),
+            r(FORWARD_LINE_DELAY, &[c.line_delay_s]),
             r(FORWARD_RATE, &[c.rate_hz]),
             r(FORWARD_LATENCY, &[c.latency_s]),
             r(FORWARD_LATENCY_JITTER, &[c.latency_jitter_s]),
