@@ -45,7 +45,7 @@ impl CameraSim {
 
 #[derive(Args, Debug)]
 pub(crate) struct FlyArgs {
-    /// Scenario: a built-in name (`paper`) or a TOML file.
+    /// Scenario: a built-in name (`paper`, `webcam`) or a TOML file.
     #[arg(long, default_value = "paper")]
     pub(crate) scenario: String,
     /// Seed of every noise stream (a run is a pure function of scenario, seed and camera mode). With `--vary`,

@@ -29,7 +29,7 @@ pub(crate) struct RenderArgs {
     /// Output PNG file.
     #[arg(long)]
     pub(crate) out: PathBuf,
-    /// Scenario: a built-in name (`paper`) or a TOML file.
+    /// Scenario: a built-in name (`paper`, `webcam`) or a TOML file.
     #[arg(long, default_value = "paper")]
     pub(crate) scenario: String,
     /// Seed of the sensor noise.

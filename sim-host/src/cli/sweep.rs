@@ -37,7 +37,7 @@ pub(crate) struct MergeArgs {
 
 #[derive(Args, Debug)]
 pub(crate) struct SweepRunArgs {
-    /// The base scenario: a built-in name (`paper`) or a TOML file.
+    /// The base scenario: a built-in name (`paper`, `webcam`) or a TOML file.
     #[arg(long, default_value = "paper")]
     pub(crate) scenario: String,
     /// The distributions each run's scenario is drawn from (docs/robustness.md).

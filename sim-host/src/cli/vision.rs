@@ -43,7 +43,7 @@ pub(crate) struct FlowArgs {
     /// Distance from the camera to the floor along the optical axis, in metres. With --dt, gives the velocity.
     #[arg(long, allow_hyphen_values = true)]
     pub(crate) range: Option<f64>,
-    /// Scenario: a built-in name (`paper`) or a TOML file (the downward camera's intrinsics and mount).
+    /// Scenario: a built-in name (`paper`, `webcam`) or a TOML file (the downward camera's intrinsics and mount).
     #[arg(long, default_value = "paper")]
     pub(crate) scenario: String,
 }
@@ -69,7 +69,7 @@ pub(crate) struct PoseArgs {
     /// Standard deviation of the IMU roll and pitch, in degrees.
     #[arg(long, default_value_t = 0.5)]
     pub(crate) attitude_sigma: f64,
-    /// Scenario: a built-in name (`paper`) or a TOML file (camera and line).
+    /// Scenario: a built-in name (`paper`, `webcam`) or a TOML file (camera and line).
     #[arg(long, default_value = "paper")]
     pub(crate) scenario: String,
     /// Solver.

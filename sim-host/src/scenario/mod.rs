@@ -15,7 +15,10 @@ use std::path::Path;
 use vision_core::{CameraModel, CameraMount, Distortion, LineTarget};
 
 /// The built-in scenarios: `(name, TOML text)`.
-pub const BUILT_IN: &[(&str, &str)] = &[("paper", include_str!("../../scenarios/paper.toml"))];
+pub const BUILT_IN: &[(&str, &str)] = &[
+    ("paper", include_str!("../../scenarios/paper.toml")),
+    ("webcam", include_str!("../../scenarios/webcam.toml")),
+];
 
 /// The scene: the wall with the painted line, the floor, the light.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -629,6 +632,21 @@ impl Scenario {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_webcam_scenario_is_the_paper_s_with_a_webcam() {
+        let (paper, webcam) = (Scenario::paper(), Scenario::load("webcam").unwrap());
+        let c = &webcam.forward_camera;
+        assert_eq!(c.distortion, [-0.3, 0.08, 0.0, 0.0, 0.0]);
+        assert_eq!((c.blur_sigma_px, c.vignetting, c.exposure_step), (1.0, 0.3, 0.3));
+        assert_eq!((c.exposure_time_s, c.line_delay_s, c.jpeg_quality), (0.01, 30e-6, 85));
+        assert_eq!(c.response, vision_core::ToneCurve::Srgb);
+        // Everything but the forward camera (and the names) is the paper's.
+        let mut same = webcam.clone();
+        (same.name, same.description, same.forward_camera) =
+            (paper.name.clone(), paper.description.clone(), paper.forward_camera.clone());
+        assert_eq!(same, paper);
+    }
 
     #[test]
     fn paper_scenario_matches_the_issue() {
