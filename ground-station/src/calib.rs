@@ -41,6 +41,9 @@ pub struct Calibration {
     /// The camera's tone curve: the optional key `tone_curve` (`srgb` or `linear`; neither format has one,
     /// and webcams deliver sRGB, the default).
     pub tone_curve: ToneCurve,
+    /// A rolling shutter's delay between consecutive rows (s): the optional key `line_delay_s` (0, a global
+    /// shutter, when absent). The station corrects the rows with the vehicle's rates when it is not zero.
+    pub line_delay_s: f64,
 }
 
 /// Reads a calibration file (the format is recognised from its keys).
@@ -151,7 +154,7 @@ fn calibration(
     coefficients: &[f64],
     rate_hz: Option<f64>,
     format: CalibFormat,
-    tone_curve: ToneCurve,
+    (tone_curve, line_delay_s): (ToneCurve, f64),
 ) -> Result<Calibration, String> {
     let camera = checked(CameraModel {
         width,
@@ -169,7 +172,23 @@ fn calibration(
         rate_hz,
         format,
         tone_curve,
+        line_delay_s,
     })
+}
+
+/// The optional `line_delay_s` key: 0 to 100 us per row.
+fn line_delay(y: &Yaml, field: &str) -> Result<f64, String> {
+    match y {
+        Yaml::BadValue => Ok(0.0),
+        y => {
+            let v = number(y, field)?;
+            if (0.0..=1e-4).contains(&v) {
+                Ok(v)
+            } else {
+                Err(format!("`{field}`: {v} s per row is not a rolling shutter's line delay (0 to 0.0001)"))
+            }
+        }
+    }
 }
 
 /// The optional `tone_curve` key.
@@ -228,7 +247,8 @@ fn camera_info(doc: &Yaml) -> Result<Calibration, String> {
     } else {
         distortion(&model, &d, "distortion_coefficients.data")?
     };
-    let tone = tone_curve(&doc["tone_curve"], "tone_curve")?;
+    let tone =
+        (tone_curve(&doc["tone_curve"], "tone_curve")?, line_delay(&doc["line_delay_s"], "line_delay_s")?);
     calibration(
         (width, height),
         [k[0], k[4], k[2], k[5]],
@@ -272,7 +292,10 @@ fn kalibr(cam: &Yaml, prefix: &str) -> Result<Calibration, String> {
         Yaml::BadValue => None,
         y => Some(number(y, &f("rate_hz"))?),
     };
-    let tone = tone_curve(&cam["tone_curve"], &f("tone_curve"))?;
+    let tone = (
+        tone_curve(&cam["tone_curve"], &f("tone_curve"))?,
+        line_delay(&cam["line_delay_s"], &f("line_delay_s"))?,
+    );
     calibration((width, height), [k[0], k[1], k[2], k[3]], distortion, &d, rate_hz, CalibFormat::Kalibr, tone)
 }
 
@@ -344,6 +367,9 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
         let linear = parse(&format!("{CAMERA_INFO}tone_curve: linear\n")).unwrap();
         assert_eq!(linear.tone_curve, ToneCurve::Linear);
         assert_eq!(parse(&format!("{CAMERA_INFO}tone_curve: srgb\n")).unwrap().tone_curve, ToneCurve::Srgb);
+        // A global shutter unless the file gives the rolling shutter's line delay.
+        assert_eq!(c.line_delay_s, 0.0);
+        assert_eq!(parse(&format!("{CAMERA_INFO}line_delay_s: 3.0e-5\n")).unwrap().line_delay_s, 3.0e-5);
     }
 
     #[test]
@@ -419,6 +445,11 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
                 "image_width: 640\nimage_height: 480\ncamera_matrix: {data: [300,0,320,0,300,240,0,0,1]}\n\
                  tone_curve: 2.2\n",
                 "`tone_curve`",
+            ),
+            (
+                "image_width: 640\nimage_height: 480\ncamera_matrix: {data: [300,0,320,0,300,240,0,0,1]}\n\
+                 line_delay_s: 0.03\n",
+                "`line_delay_s`: 0.03 s per row is not a rolling shutter's line delay",
             ),
         ];
         for (text, want) in cases {

@@ -67,7 +67,7 @@ fn main() {
             let t1 = Instant::now();
             let seq = f.seq.unwrap_or(0) as u32;
             let img = forward_image(f, &camera).expect("image");
-            let m = measure_forward(&mut vision, &img, seq as u64 * 33_333, seq);
+            let m = measure_forward(&mut vision, &img, seq as u64 * 33_333, seq, None);
             measured += m.observation.is_some() as usize;
             let bytes = protocol::frame::encode(
                 &protocol::Uplink::PackedVision(protocol::PackedVision::pack(&m)),

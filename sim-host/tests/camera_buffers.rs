@@ -183,7 +183,7 @@ fn the_station_measures_a_streamed_frame_exactly_as_the_simulator_measures_it() 
         for (k, img) in images.iter().enumerate() {
             let f = reader.next_frame().unwrap().unwrap();
             let streamed = sim_host::station::forward_image(f, &camera).unwrap();
-            let m = sim_host::station::measure_forward(&mut station, &streamed, 7, k as u32);
+            let m = sim_host::station::measure_forward(&mut station, &streamed, 7, k as u32, None);
             let want = sil.detect(img).ok();
             assert_eq!(
                 postcard::to_allocvec(&m.observation).unwrap(),

@@ -95,7 +95,7 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
         (c.width_px, c.height_px, c.fx_px, c.fy_px, c.cx_px, c.cy_px) =
             (cal.camera.width, cal.camera.height, fx, fy, cx, cy);
         c.distortion = cal.distortion;
-        c.response = cal.tone_curve;
+        (c.response, c.line_delay_s) = (cal.tone_curve, cal.line_delay_s);
         scenario.validate().with_context(|| format!("the camera of {}", path.display()))?;
     }
     let script = match a.script.as_str() {

@@ -62,14 +62,19 @@ pub fn forward_image(f: Frame, camera: &vision_core::CameraModel) -> Result<RgbI
 }
 
 /// The measurement of a forward frame captured at `vehicle_us` on the vehicle's clock (the line's edges, or
-/// none), as it goes up the radio.
+/// none), as it goes up the radio; a rolling shutter's rows corrected when `timing` is given.
 pub fn measure_forward(
     vision: &mut GroundVision,
     img: &RgbImage,
     vehicle_us: u64,
     frame_seq: u32,
+    timing: Option<&vision_core::RowTiming>,
 ) -> VisionMeasurement {
-    VisionMeasurement { capture_time_us: vehicle_us, frame_seq, observation: vision.detect(img).ok() }
+    VisionMeasurement {
+        capture_time_us: vehicle_us,
+        frame_seq,
+        observation: vision.detect_timed(img, timing).ok(),
+    }
 }
 
 /// A camera silent for this long is stalled (counted once per stall; 15 frames at 30 Hz).
