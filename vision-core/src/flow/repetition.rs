@@ -217,3 +217,74 @@ fn search(
         ratio: v as f32 / plateau as f32,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::image::Gray8View;
+
+    const W: usize = 160;
+    const H: usize = 120;
+
+    /// A frame repeating every `px` pixels in x and `py` in y (a product of two periodic profiles, so its
+    /// shortest repetition is the shorter of the two), plus `noise` grey levels of a fixed pseudo-random
+    /// pattern that does not repeat.
+    fn frame(px: usize, py: usize, noise: f32) -> Vec<u8> {
+        let mut s = 0x1234_5678u32;
+        let mut img = vec![0u8; W * H];
+        for y in 0..H {
+            for x in 0..W {
+                s ^= s << 13;
+                s ^= s >> 17;
+                s ^= s << 5;
+                let n = (s % 1000) as f32 / 1000.0 - 0.5;
+                let a = core::f32::consts::TAU * (x % px) as f32 / px as f32;
+                let b = core::f32::consts::TAU * (y % py) as f32 / py as f32;
+                let v = 128.0 + 40.0 * (a.sin() + 0.5 * (2.0 * a).cos()) + 40.0 * b.sin() + noise * n;
+                img[y * W + x] = v.round().clamp(0.0, 255.0) as u8;
+            }
+        }
+        img
+    }
+
+    fn found(img: &[u8], levels: usize, max_ratio: f32) -> Option<Repetition> {
+        let mut p = Box::new(Pyramid::new());
+        p.build(&Gray8View::packed(img, W, H).unwrap(), levels, false);
+        let params = FlowParams { max_repetition_ratio: max_ratio, ..FlowParams::default() };
+        find(&p, &params, &mut Scratch::new())
+    }
+
+    #[test]
+    fn each_stage_finds_its_repetitions_exactly() {
+        // Level 0 (2-6 px), level 1 (4-12 px) and the coarse image (beyond) each report the shortest
+        // repetition at its exact offset (in level-0 pixels) and a ratio near 0.
+        for (px, py, want) in [(4, 50, 4.0), (10, 48, 10.0), (28, 52, 28.0), (36, 44, 36.0)] {
+            let rep = found(&frame(px, py, 0.0), 2, 0.25).unwrap_or_else(|| panic!("period {px}: none"));
+            assert_eq!(rep.offset_px.y, 0.0, "period {px}: {rep:?}");
+            assert_eq!(rep.offset_px.x.abs(), want, "period {px}: {rep:?}");
+            assert!(rep.ratio < 0.05, "period {px}: {rep:?}");
+        }
+        // One pyramid level: level 0 and a half-size coarse image.
+        let rep = found(&frame(24, 50, 0.0), 1, 0.25).unwrap();
+        assert_eq!((rep.offset_px.x.abs(), rep.offset_px.y), (24.0, 0.0), "{rep:?}");
+    }
+
+    #[test]
+    fn the_ratio_is_the_match_over_the_typical_difference() {
+        // The same tiling with non-repeating noise: the match at the repetition is the noise's difference,
+        // measured 0.125 of the typical one here; found below a ratio of 0.5, and not below its own ratio.
+        let img = frame(10, 14, 100.0);
+        let rep = found(&img, 2, 0.5).unwrap();
+        assert_eq!(rep.offset_px.x.abs(), 10.0, "{rep:?}");
+        assert!(rep.ratio > 0.1 && rep.ratio < 0.15, "{rep:?}");
+        // Below that, only the coarse image's match remains (its 4x4 means average the noise out: measured
+        // 20 px with a ratio of 0.044).
+        let coarse = found(&img, 2, 0.1).unwrap();
+        assert_eq!((coarse.offset_px.x.abs(), coarse.offset_px.y), (20.0, 0.0), "{coarse:?}");
+        assert!(coarse.ratio < 0.06, "{coarse:?}");
+        assert_eq!(found(&img, 2, 0.03), None);
+        // Turned off, and a frame without texture: nothing.
+        assert_eq!(found(&frame(10, 48, 0.0), 2, 0.0), None);
+        assert_eq!(found(&[128u8; W * H], 2, 0.25), None);
+    }
+}
