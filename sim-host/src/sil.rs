@@ -687,23 +687,11 @@ impl Sil {
                             None => {
                                 // A rolling shutter: the station corrects the rows with the vehicle's rates from
                                 // its last telemetry.
-                                let c = &self.scenario.forward_camera;
-                                let timing = (c.line_delay_s > 0.0).then(|| {
-                                    let rates = self
-                                        .station_telemetry
-                                        .map(|t| t.estimate.rates_rad_s)
-                                        .unwrap_or(Vec3::ZERO);
-                                    vision_core::RowTiming {
-                                        rates_cam_rad_s: self
-                                            .scenario
-                                            .forward_camera_mount()
-                                            .body_from_camera
-                                            .transpose()
-                                            .mul_vec(rates),
-                                        line_delay_s: c.line_delay_s as f32,
-                                        reference_row: (c.height_px as f32 - 1.0) / 2.0,
-                                    }
-                                });
+                                let rates = self
+                                    .station_telemetry
+                                    .map(|t| t.estimate.rates_rad_s)
+                                    .unwrap_or(Vec3::ZERO);
+                                let timing = self.scenario.forward_row_timing(rates);
                                 self.stats
                                     .ground_no_target
                                     .record(self.vision.detect_timed(&img, timing.as_ref()))

@@ -706,7 +706,6 @@ pub fn add_frame(
     if n_sel == 0 {
         return Err(NoFlowReason::NoTexture);
     }
-    let repeats = repetition::find(a, params, &mut ws.rep_scratch);
     let mut n = 0;
     let rot = Quat::from_rotvec(predicted_rotation).to_mat3();
     for k in 0..n_sel {
@@ -733,8 +732,12 @@ pub fn add_frame(
     )?;
     // On a repeating floor a flow of a sizeable fraction of the repetition may be the alias of a longer
     // motion (`flow::repetition`); a small one is not (its alias would be a motion of most of a repetition).
-    if let Some(rep) = repeats
-        && stats.flow.norm() * camera.focal_px() >= repetition::ALIAS_FRACTION * rep.offset_px.norm()
+    // Repetitions are at least `MIN_OFFSET_PX` long: a flow shorter than the refused fraction of that cannot be
+    // refused, and the search is skipped (a hovering vehicle's pairs).
+    let flow_px = stats.flow.norm() * camera.focal_px();
+    if flow_px >= repetition::ALIAS_FRACTION * repetition::MIN_OFFSET_PX
+        && let Some(rep) = repetition::find(&ws.pyr[prev], params, &mut ws.rep_scratch)
+        && flow_px >= repetition::ALIAS_FRACTION * rep.offset_px.norm()
     {
         ws.repetition = Some(rep);
         return Err(NoFlowReason::RepeatingTexture);

@@ -615,6 +615,21 @@ impl Scenario {
         }
     }
 
+    /// The forward camera's rolling-shutter timing for the detector when it has one (`line_delay_s` above 0),
+    /// with the vehicle's body rates (rad/s) rotated into the camera: rows timed from the middle one.
+    pub fn forward_row_timing(&self, rates_body_rad_s: Vec3) -> Option<vision_core::RowTiming> {
+        let c = &self.forward_camera;
+        (c.line_delay_s > 0.0).then(|| vision_core::RowTiming {
+            rates_cam_rad_s: self
+                .forward_camera_mount()
+                .body_from_camera
+                .transpose()
+                .mul_vec(rates_body_rad_s),
+            line_delay_s: c.line_delay_s as f32,
+            reference_row: (c.height_px as f32 - 1.0) / 2.0,
+        })
+    }
+
     /// The forward camera's mount for vision-core.
     pub fn forward_camera_mount(&self) -> CameraMount {
         let c = &self.forward_camera;

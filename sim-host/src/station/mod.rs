@@ -470,19 +470,8 @@ fn station_loop(
             }
             // A rolling shutter (the calibration's `line_delay_s`): its rows corrected with the rates of the
             // last telemetry.
-            let fc = &scenario.forward_camera;
-            let timing = (fc.line_delay_s > 0.0).then(|| {
-                let rates = telemetry.map_or(geometry::Vec3::ZERO, |tm| tm.estimate.rates_rad_s);
-                vision_core::RowTiming {
-                    rates_cam_rad_s: scenario
-                        .forward_camera_mount()
-                        .body_from_camera
-                        .transpose()
-                        .mul_vec(rates),
-                    line_delay_s: fc.line_delay_s as f32,
-                    reference_row: (fc.height_px as f32 - 1.0) / 2.0,
-                }
-            });
+            let rates = telemetry.map_or(geometry::Vec3::ZERO, |tm| tm.estimate.rates_rad_s);
+            let timing = scenario.forward_row_timing(rates);
             let m = measure_forward(&mut vision, &img, vehicle_us, frame_seq, timing.as_ref());
             stats.forward_measured += m.observation.is_some() as u64;
             send(&Uplink::PackedVision(PackedVision::pack(&m)), &mut writer, rec)?;

@@ -33,6 +33,8 @@ const POINTS: [usize; 2] = [12, 9];
 /// to 0.85 of a repetition are caught, and motions under 0.15 of it pass (a near-repetition 55 px away in a
 /// sum of six sinusoids does not stop a 3 px flow).
 pub(super) const ALIAS_FRACTION: f32 = 0.15;
+/// The shortest repetition the search reports (level-0 px): offsets with `|s|_inf >= 2` on level 0.
+pub(super) const MIN_OFFSET_PX: f32 = 2.0;
 /// The coarse image of a one-level pyramid of the largest frame is a quarter of it.
 const COARSE_LEN: usize = FLOW_MAX_W * FLOW_MAX_H / 4;
 
