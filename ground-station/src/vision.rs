@@ -250,4 +250,9 @@ impl FlowTracker {
     pub fn repetition(&self) -> Option<flow::Repetition> {
         self.ws.repetition()
     }
+
+    /// The last pair's tracks (position px, displacement px, inlier), for display.
+    pub fn last_tracks(&self) -> impl Iterator<Item = (geometry::Vec2, geometry::Vec2, bool)> + '_ {
+        self.ws.last_tracks()
+    }
 }

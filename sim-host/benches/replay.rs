@@ -31,6 +31,8 @@ fn flight_log(
         frames,
         serve: None,
         mavlink: None,
+        live: None,
+        real_time: None,
     };
     fly(&opts, |_, _| {}).expect("flight");
     dir.join(LOG_FILE)

@@ -67,6 +67,11 @@ impl GroundFlow {
     pub fn repetition(&self) -> Option<vision_core::flow::Repetition> {
         self.0.repetition()
     }
+
+    /// The last pair's tracks (position px, displacement px, inlier), for display.
+    pub fn last_tracks(&self) -> impl Iterator<Item = (geometry::Vec2, geometry::Vec2, bool)> + '_ {
+        self.0.last_tracks()
+    }
 }
 
 /// The analytic stand-in for the tracker: floor points on a grid of the earlier frame, projected exactly into

@@ -15,11 +15,11 @@ use std::io::Write;
 use std::path::Path;
 
 /// A topic's message: name, schema name, time (us), content.
-struct Msg {
-    topic: &'static str,
-    schema: &'static str,
-    time_us: u64,
-    value: Value,
+pub(crate) struct Msg {
+    pub(crate) topic: &'static str,
+    pub(crate) schema: &'static str,
+    pub(crate) time_us: u64,
+    pub(crate) value: Value,
 }
 
 fn stamp(time_us: u64) -> Value {
@@ -52,7 +52,7 @@ fn with_time(time_us: u64, v: Value) -> Value {
 }
 
 /// The topics of one record (camera frames aside). `step_us` is the time of the last step.
-fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
+pub(crate) fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
     let v = |x: &dyn erased::Ser| x.json();
     match r {
         LogRecord::Step(s) => {
@@ -278,7 +278,7 @@ pub fn base64(data: &[u8]) -> String {
 }
 
 /// JSON Schema of a channel: the Foxglove well-known schemas, or an object schema named after our record.
-fn schema_of(name: &str) -> Value {
+pub(crate) fn schema_of(name: &str) -> Value {
     let time =
         json!({"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}});
     let vec3 = json!({"type": "object", "properties": {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}}});

@@ -34,6 +34,19 @@ pub struct FlyOptions {
     pub serve: Option<crate::virtual_vehicle::ServeOptions>,
     /// Fly in real time with a MAVLink ground control station commanding the in-process station.
     pub mavlink: Option<MavlinkFly>,
+    /// Publish the flight live for Foxglove or Lichtblick (`crate::live`, the `live` feature).
+    pub live: Option<LiveFly>,
+    /// Pace the flight to the wall clock; setting the flag (Ctrl-C) ends it with its outputs written.
+    pub real_time: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+}
+
+/// `fly --live`: where the live view listens, and how long to wait for its first viewer before flying.
+#[derive(Clone, Debug)]
+pub struct LiveFly {
+    /// `HOST:PORT` (port 0: any free one).
+    pub addr: String,
+    /// Seconds to wait for a viewer (0: none).
+    pub wait_s: f64,
 }
 
 /// `fly --mavlink`: the ground control station's address, and the flag that stops the real-time flight.
@@ -117,7 +130,43 @@ pub fn output_files(out: &Path) -> Vec<PathBuf> {
 pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyResult> {
     std::fs::create_dir_all(&opts.out).with_context(|| format!("cannot create {}", opts.out.display()))?;
     let end = opts.duration_s.unwrap_or(opts.scenario.mission.max_duration_s);
+    #[cfg(not(feature = "live"))]
+    if opts.live.is_some() {
+        anyhow::bail!(
+            "--live: this sim-host was built without the live view; build it with `--features live` \
+             (`cargo run --release -p sim-host --features live -- fly --live ...`)"
+        );
+    }
+    #[cfg(feature = "live")]
+    let live_view = match &opts.live {
+        None => None,
+        Some(l) => {
+            let mut view = crate::live::LiveView::start(&l.addr, &opts.scenario)?;
+            // On stdout, for whoever connects a viewer (a port 0 was chosen here).
+            println!("live view ws://{}", view.address());
+            use std::io::Write as _;
+            std::io::stdout().flush()?;
+            eprintln!(
+                "live view: in Foxglove or Lichtblick, Open connection > Foxglove WebSocket > ws://{} (layout: \
+                 docs/foxglove-layout.json)",
+                view.address()
+            );
+            if l.wait_s > 0.0 {
+                eprintln!("waiting up to {} s for the first viewer", l.wait_s);
+                let never = std::sync::atomic::AtomicBool::new(false);
+                let stop = opts.real_time.as_deref().unwrap_or(&never);
+                if !view.wait_for_client(stop, std::time::Duration::from_secs_f64(l.wait_s)) {
+                    eprintln!("no viewer connected: flying anyway");
+                }
+            }
+            Some(view)
+        }
+    };
     let mut sil = Sil::with_fc(&opts.scenario, opts.seed, opts.camera, &opts.fc)?;
+    #[cfg(feature = "live")]
+    if let Some(view) = &live_view {
+        sil.set_tap(Box::new(view.tap()));
+    }
     let log_path = opts.out.join(crate::flightlog::LOG_FILE);
     if opts.log {
         let header = crate::flightlog::LogHeader {
@@ -160,7 +209,10 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
             mavlink_stats = sil.take_ground_hook().map(|h| h.finish());
             st
         }
-        (None, None) => sil.run(end, |t| progress(t, end)),
+        (None, None) => match &opts.real_time {
+            Some(stop) => run_real_time(&mut sil, end, stop, |t| progress(t, end)),
+            None => sil.run(end, |t| progress(t, end)),
+        },
         (Some(serve), None) => {
             let bound = crate::virtual_vehicle::Bound::bind(serve)?;
             let (link, forward, down) = bound.addresses();
@@ -181,6 +233,13 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
         }
     };
     let wall = t0.elapsed().as_secs_f64();
+    #[cfg(feature = "live")]
+    let live_stats = live_view.map(|view| {
+        drop(sil.take_tap());
+        let st = view.finish();
+        eprintln!("live view: {}", st.describe());
+        st
+    });
     let mut files = Vec::new();
     if opts.log {
         sil.finish_log()?;
@@ -211,6 +270,10 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
     }
     if let Some(ms) = mavlink_stats {
         summary["mavlink"] = serde_json::to_value(ms)?;
+    }
+    #[cfg(feature = "live")]
+    if let Some(ls) = live_stats {
+        summary["live"] = serde_json::to_value(ls)?;
     }
     let path = opts.out.join("summary.json");
     crate::files::write_atomic(&path, (serde_json::to_string_pretty(&summary)? + "\n").as_bytes())?;

@@ -13,6 +13,8 @@ pub mod fly;
 pub mod imageio;
 pub mod import;
 pub mod link_key;
+#[cfg(feature = "live")]
+pub mod live;
 pub mod mavlink_endpoint;
 pub use vehicle_model as model;
 pub mod params_doc;

@@ -27,9 +27,10 @@ use control_core::estimator::ImuSample;
 use flight_core::flow::FlowOutcome;
 use flight_core::{FlightConfig, FlightStack, StepInput, StepReport};
 use geometry::frames::Attitude;
-use geometry::{Mat3, Vec3};
+use geometry::{Mat3, Vec2, Vec3};
 use protocol::{FlowMeasurement, Uplink, VisionMeasurement};
 use std::collections::VecDeque;
+use vision_core::observation::LineObservation;
 use vision_core::observation::project_observation;
 use vision_core::observation::within_detector_limits;
 
@@ -306,6 +307,28 @@ pub struct Sil {
     ports: Option<StationPorts>,
     /// A ground control station beside the in-process station (`fly --mavlink`).
     ground_hook: Option<Box<dyn GroundHook + Send>>,
+    /// Whoever watches the flight as it happens (`fly --live`).
+    tap: Option<Box<dyn FlightTap>>,
+}
+
+/// Whoever watches a flight as it happens (the live view, `crate::live`): the records the flight log gets,
+/// as it gets them (with or without a log), and the rendered cameras' frames with what the in-process
+/// ground station's vision made of them. Implementations hand the work to another thread: these are called
+/// on the simulation's.
+pub trait FlightTap: Send {
+    /// Records of the flight, in the log's order (`crate::flightlog`).
+    fn records(&mut self, records: &[LogRecord]);
+    /// A forward frame captured at `t_us` and the ground station's detection in it (None: no line found, or
+    /// a separate station detects).
+    fn forward_frame(
+        &mut self,
+        t_us: u64,
+        img: &crate::imageio::RgbImage,
+        detection: Option<&LineObservation>,
+    );
+    /// A downward frame captured at `t_us` and the tracks of the pair it ends (position px, displacement px,
+    /// inlier).
+    fn down_frame(&mut self, t_us: u64, img: &crate::imageio::GrayImage, tracks: &[(Vec2, Vec2, bool)]);
 }
 
 /// A ground control station beside the in-process ground station (`sim-host fly --mavlink`): it sees what came
@@ -524,7 +547,18 @@ impl Sil {
             last_failsafe: None,
             ports: None,
             ground_hook: None,
+            tap: None,
         })
+    }
+
+    /// Lets `tap` watch the flight as it happens ([`FlightTap`]).
+    pub fn set_tap(&mut self, tap: Box<dyn FlightTap>) {
+        self.tap = Some(tap);
+    }
+
+    /// The tap, taken back (to end it).
+    pub fn take_tap(&mut self) -> Option<Box<dyn FlightTap>> {
+        self.tap.take()
     }
 
     /// Lets a ground control station command the vehicle through the in-process station ([`GroundHook`]),
@@ -697,6 +731,9 @@ impl Sil {
                                     .record(self.vision.detect_timed(&img, timing.as_ref()))
                             }
                         };
+                        if let Some(tap) = self.tap.as_mut() {
+                            tap.forward_frame(self.t_us, &img, observation.as_ref());
+                        }
                         if let Some(enc) = self.frame_encoding() {
                             let f = crate::flightlog::CameraFrame::rgb(
                                 self.frame_index as u32,
@@ -834,6 +871,10 @@ impl Sil {
                     }
                     None => fl.add(&img, predicted),
                 };
+                if let Some(tap) = self.tap.as_mut() {
+                    let tracks: Vec<_> = fl.last_tracks().collect();
+                    tap.down_frame(self.t_us, &img, &tracks);
+                }
                 if let Some(enc) = self.frame_encoding() {
                     let f = crate::flightlog::CameraFrame::gray(
                         crate::flightlog::CameraId::Downward,
@@ -1022,7 +1063,7 @@ impl Sil {
             },
             None => return,
         };
-        if self.flight_log.is_some() {
+        if self.flight_log.is_some() || self.tap.is_some() {
             let step = flight_core::fil::SensorStep {
                 time_us: self.t_us,
                 // Scenario validation keeps a control step within `MAX_IMU_PER_STEP` samples
@@ -1110,7 +1151,7 @@ impl Sil {
 
     fn record(&mut self) {
         let Some(out) = self.last_out else { return };
-        if self.flight_log.is_some() {
+        if self.flight_log.is_some() || self.tap.is_some() {
             let s = &self.quad.state;
             let att = attitude_of(&quat_to_mat(s.q));
             let truth = LogRecord::Truth {
@@ -1282,6 +1323,9 @@ impl Sil {
     }
 
     fn write_log(&mut self, records: &[LogRecord]) {
+        if let Some(tap) = self.tap.as_mut() {
+            tap.records(records);
+        }
         let Some(w) = self.flight_log.as_mut() else { return };
         for r in records {
             if let Err(e) = w.write(r) {

@@ -155,6 +155,8 @@ pub fn fly_logged(
         frames,
         serve: None,
         mavlink: None,
+        live: None,
+        real_time: None,
     };
     if let Err(e) = sim_host::fly::fly(&opts, |_, _| {}) {
         panic!("the flight failed: {e:#}");

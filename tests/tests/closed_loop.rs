@@ -81,6 +81,8 @@ fn without_the_flow_camera_it_still_flies_and_says_so() {
         frames: sim_host::flightlog::FramePolicy::Drop,
         serve: None,
         mavlink: None,
+        live: None,
+        real_time: None,
     };
     let r = sim_host::fly::fly(&opts, |_, _| {}).unwrap();
     assert!(!r.stats.flow_camera && r.stats.flow.pairs == 0);

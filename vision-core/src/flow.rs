@@ -409,6 +409,7 @@ pub struct FlowWorkspace {
     has_prev: bool,
     feats: [Vec2; MAX_FEATURES],
     tracks: [(Vec2, Vec2); MAX_FEATURES],
+    n_tracks: usize,
     inlier: [bool; MAX_FEATURES],
     scratch: [f32; MAX_FEATURES],
     lk: LkScratch,
@@ -431,6 +432,7 @@ impl FlowWorkspace {
             has_prev: false,
             feats: [Vec2::ZERO; MAX_FEATURES],
             tracks: [(Vec2::ZERO, Vec2::ZERO); MAX_FEATURES],
+            n_tracks: 0,
             inlier: [false; MAX_FEATURES],
             scratch: [0.0; MAX_FEATURES],
             lk: LkScratch::new(),
@@ -443,6 +445,14 @@ impl FlowWorkspace {
     pub fn reset(&mut self) {
         self.has_prev = false;
         self.repetition = None;
+        self.n_tracks = 0;
+    }
+
+    /// The tracks of the last pair, for display: each feature's position in the earlier frame (px), its
+    /// displacement to the later one (px) and whether the velocity used it (an inlier). Empty after a first
+    /// frame, a reset, or a pair refused before tracking.
+    pub fn last_tracks(&self) -> impl Iterator<Item = (Vec2, Vec2, bool)> + '_ {
+        self.tracks[..self.n_tracks].iter().zip(&self.inlier).map(|(&(p, d), &ok)| (p, d, ok))
     }
 
     /// The repetition that made the last pair [`NoFlowReason::RepeatingTexture`] (None after any other
@@ -681,6 +691,7 @@ pub fn add_frame(
     predicted_rotation: Vec3,
     ws: &mut FlowWorkspace,
 ) -> Result<Option<FlowStats>, NoFlowReason> {
+    ws.n_tracks = 0;
     if img.width() > FLOW_MAX_W
         || img.height() > FLOW_MAX_H
         || img.width() != camera.width as usize
@@ -721,6 +732,9 @@ pub fn add_frame(
         ws.tracks[n] = (p, d);
         n += 1;
     }
+    ws.n_tracks = n;
+    // A pair refused by the aggregation keeps no inliers.
+    ws.inlier[..n].fill(false);
     let stats = aggregate(
         &ws.tracks[..n],
         n_sel,
@@ -982,6 +996,33 @@ mod tests {
             assert!((m.x - sx).abs() < 0.05 && (m.y - sy).abs() < 0.05, "robust flow {m:?}");
             assert!(s.quality > 0.8 && s.inliers >= 30, "{s:?}");
         }
+    }
+
+    #[test]
+    fn the_last_pair_s_tracks_are_kept_for_display() {
+        let (sx, sy) = (1.25f32, -0.5f32);
+        let (a, b) = (texture(0.0, 0.0, 1.0), texture(-sx, -sy, 1.0));
+        let mut ws = Box::new(FlowWorkspace::new());
+        let (va, vb) = (Gray8View::packed(&a, W, H).unwrap(), Gray8View::packed(&b, W, H).unwrap());
+        let s = flow_between(&va, &vb, &cam(), &FlowParams::default(), Vec3::ZERO, &mut ws).unwrap();
+        let tracks: Vec<_> = ws.last_tracks().collect();
+        assert!(tracks.len() >= s.inliers as usize, "{} tracks, {} inliers", tracks.len(), s.inliers);
+        assert_eq!(tracks.iter().filter(|t| t.2).count(), s.inliers as usize);
+        for (p, d, ok) in &tracks {
+            assert!(p.x >= 0.0 && p.x < W as f32 && p.y >= 0.0 && p.y < H as f32, "{p:?}");
+            if *ok {
+                assert!((d.x - sx).abs() < 0.1 && (d.y - sy).abs() < 0.1, "{d:?}");
+            }
+        }
+        // A blank pair has none; a reset forgets them.
+        let blank = texture(0.0, 0.0, 0.0);
+        let vblank = Gray8View::packed(&blank, W, H).unwrap();
+        assert!(flow_between(&va, &vb, &cam(), &FlowParams::default(), Vec3::ZERO, &mut ws).is_ok());
+        assert!(add_frame(&vblank, &cam(), &FlowParams::default(), Vec3::ZERO, &mut ws).is_err());
+        assert_eq!(ws.last_tracks().count(), 0);
+        assert!(flow_between(&va, &vb, &cam(), &FlowParams::default(), Vec3::ZERO, &mut ws).is_ok());
+        ws.reset();
+        assert_eq!(ws.last_tracks().count(), 0);
     }
 
     #[test]

@@ -111,6 +111,20 @@ pub(crate) struct FlyArgs {
     /// The run ends when the vehicle has landed and disarmed after flying, at --duration, or on Ctrl-C.
     #[arg(long, value_name = "udp:HOST:PORT", conflicts_with = "serve_link")]
     pub(crate) mavlink: Option<String>,
+    /// Publish the flight live for Foxglove or Lichtblick over the Foxglove WebSocket protocol on HOST:PORT
+    /// (default 127.0.0.1:8765; port 0: any free one; the address is printed on stdout): the MCAP export's
+    /// topics, both cameras' images with what the vision found in them, the vehicle, the wall and the line in
+    /// 3D (docs/live-view.md). The flight starts when the first viewer connects (see --live-wait); add
+    /// --real-time to watch it at the vehicle's pace. Needs a build with `--features live`.
+    #[arg(long, value_name = "HOST:PORT", num_args = 0..=1, default_missing_value = "127.0.0.1:8765",
+          conflicts_with = "serve_link")]
+    pub(crate) live: Option<String>,
+    /// With --live: seconds to wait for the first viewer before flying anyway (0: do not wait).
+    #[arg(long, default_value_t = 60.0, value_name = "S", requires = "live")]
+    pub(crate) live_wait: f64,
+    /// Pace the flight to the wall clock (to watch it live); Ctrl-C ends it with its outputs written.
+    #[arg(long, conflicts_with_all = ["serve_link", "mavlink"])]
+    pub(crate) real_time: bool,
 }
 pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
     use sim_host::fly::{FlyOptions, fly};
@@ -166,7 +180,21 @@ pub(crate) fn fly(a: &FlyArgs) -> Result<ExitCode> {
             Some(sim_host::fly::MavlinkFly { spec: spec.clone(), stop })
         }
     };
+    if !(a.live_wait.is_finite() && a.live_wait >= 0.0) {
+        bail!("--live-wait {}: must be a number of seconds, 0 or more", a.live_wait);
+    }
+    let real_time = if a.real_time {
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let flag = stop.clone();
+        ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::Relaxed))
+            .context("installing the Ctrl-C handler")?;
+        Some(stop)
+    } else {
+        None
+    };
     let opts = FlyOptions {
+        live: a.live.clone().map(|addr| sim_host::fly::LiveFly { addr, wait_s: a.live_wait }),
+        real_time,
         mavlink,
         scenario,
         seed,

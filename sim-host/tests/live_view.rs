@@ -1,0 +1,276 @@
+//! `sim-host fly --live`: a Foxglove WebSocket client (subprotocol `foxglove.sdk.v1`, as Foxglove and
+//! Lichtblick speak it) connects to a flight, subscribes, and decodes what it receives.
+//!
+//! The client runs with the `live` feature only (`cargo test -p sim-host --features live --test live_view`;
+//! CI runs it); without it, the flag's refusal is tested.
+
+use std::process::Command;
+#[cfg(feature = "live")]
+use {
+    foxglove::Decode,
+    foxglove::messages::{
+        CompressedImage, FrameTransforms, ImageAnnotations, RawImage, SceneUpdate, points_annotation,
+    },
+    serde_json::{Value, json},
+    std::collections::BTreeMap,
+    std::io::{BufRead, BufReader},
+    std::process::{Child, Stdio},
+    std::time::{Duration, Instant},
+    tungstenite::Message,
+    tungstenite::client::IntoClientRequest,
+};
+
+/// The flight's process, killed when the test ends however it ends.
+#[cfg(feature = "live")]
+struct Flight(Child);
+
+#[cfg(feature = "live")]
+impl Drop for Flight {
+    fn drop(&mut self) {
+        if matches!(self.0.try_wait(), Ok(None)) {
+            let _ = self.0.kill();
+        }
+        let _ = self.0.wait();
+    }
+}
+
+fn tmp(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("wlq-live-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[cfg(feature = "live")]
+#[test]
+fn a_foxglove_client_sees_the_flight_live() {
+    let out = tmp("fly");
+    // Port 0: a free one, printed on stdout. Real time, so that the client has the time to subscribe.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args(["fly", "--live", "127.0.0.1:0", "--live-wait", "30", "--real-time", "--duration", "4"])
+        .args(["--no-plots", "--out"])
+        .arg(&out)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let mut flight = Flight(child);
+    let err_thread = std::thread::spawn(move || std::io::read_to_string(stderr).unwrap_or_default());
+    let mut line = String::new();
+    BufReader::new(stdout).read_line(&mut line).unwrap();
+    let url =
+        line.trim().strip_prefix("live view ").unwrap_or_else(|| panic!("stdout: {line:?}")).to_string();
+    assert!(url.starts_with("ws://127.0.0.1:"), "{url}");
+
+    let mut req = url.as_str().into_client_request().unwrap();
+    req.headers_mut().insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+    let (mut ws, resp) = tungstenite::connect(req).unwrap();
+    assert_eq!(resp.headers()["Sec-WebSocket-Protocol"], "foxglove.sdk.v1");
+    if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_ref() {
+        s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    }
+
+    // topic -> (channel id, encoding, schema name); subscription id -> topic; what arrived per topic.
+    let mut channels: BTreeMap<String, (u64, String, String)> = BTreeMap::new();
+    let mut subscribed: BTreeMap<u32, String> = BTreeMap::new();
+    let mut received: BTreeMap<String, Vec<(u64, Vec<u8>)>> = BTreeMap::new();
+    let mut server_info = Value::Null;
+    let want = [
+        "/estimate/pose",
+        "/status",
+        "/truth/pose",
+        "/camera/forward/image",
+        "/camera/forward/annotations",
+        "/camera/down/image",
+        "/camera/down/annotations",
+        "/tf",
+        "/scene",
+    ];
+    let t0 = Instant::now();
+    loop {
+        let msg = match ws.read() {
+            Ok(m) => m,
+            // The flight ended and the server closed.
+            Err(_) => break,
+        };
+        match msg {
+            Message::Text(t) => {
+                let v: Value = serde_json::from_str(&t).unwrap();
+                match v["op"].as_str() {
+                    Some("serverInfo") => server_info = v,
+                    Some("advertise") => {
+                        let mut subs = Vec::new();
+                        for c in v["channels"].as_array().unwrap() {
+                            let topic = c["topic"].as_str().unwrap().to_string();
+                            let id = c["id"].as_u64().unwrap();
+                            channels.insert(
+                                topic.clone(),
+                                (
+                                    id,
+                                    c["encoding"].as_str().unwrap().into(),
+                                    c["schemaName"].as_str().unwrap().into(),
+                                ),
+                            );
+                            if want.contains(&topic.as_str()) {
+                                let sid = subscribed.len() as u32 + 1;
+                                subscribed.insert(sid, topic);
+                                subs.push(json!({"id": sid, "channelId": id}));
+                            }
+                        }
+                        if !subs.is_empty() {
+                            let m = json!({"op": "subscribe", "subscriptions": subs}).to_string();
+                            ws.send(Message::Text(m.into())).unwrap();
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            Message::Binary(b) => {
+                // Message data: opcode 1, subscription id (u32 LE), log time (u64 LE, ns), payload.
+                assert_eq!(b[0], 1, "opcode");
+                let sid = u32::from_le_bytes(b[1..5].try_into().unwrap());
+                let t = u64::from_le_bytes(b[5..13].try_into().unwrap());
+                let topic = subscribed[&sid].clone();
+                received.entry(topic).or_default().push((t, b[13..].to_vec()));
+            }
+            Message::Close(_) => break,
+            _ => {}
+        }
+        assert!(t0.elapsed() < Duration::from_secs(120), "the flight did not end");
+    }
+    let status = flight.0.wait().unwrap();
+    let err = err_thread.join().unwrap();
+    assert!(status.success(), "{err}");
+    assert!(server_info["name"].as_str().unwrap().contains("sim-host"), "{server_info}");
+
+    // Every topic advertised with its schema: JSON for the export's topics, protobuf for the typed ones.
+    let expect = [
+        ("/estimate/pose", "json", "foxglove.PoseInFrame"),
+        ("/truth/pose", "json", "foxglove.PoseInFrame"),
+        ("/status", "json", "wlq.Status"),
+        ("/imu", "json", "wlq.ImuSample"),
+        ("/camera/forward/image", "protobuf", "foxglove.CompressedImage"),
+        ("/camera/forward/annotations", "protobuf", "foxglove.ImageAnnotations"),
+        ("/camera/down/image", "protobuf", "foxglove.RawImage"),
+        ("/camera/down/annotations", "protobuf", "foxglove.ImageAnnotations"),
+        ("/tf", "protobuf", "foxglove.FrameTransforms"),
+        ("/scene", "protobuf", "foxglove.SceneUpdate"),
+    ];
+    for (topic, enc, schema) in expect {
+        let c = channels.get(topic).unwrap_or_else(|| panic!("{topic} not advertised: {channels:?}"));
+        assert_eq!((c.1.as_str(), c.2.as_str()), (enc, schema), "{topic}");
+    }
+    // The shipped layout shows only topics the live view publishes.
+    let layout_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/foxglove-layout.json");
+    let layout: Value = serde_json::from_slice(&std::fs::read(&layout_path).unwrap()).unwrap();
+    let mut layout_topics = Vec::new();
+    fn strings(v: &Value, out: &mut Vec<String>) {
+        match v {
+            Value::String(s) if s.starts_with('/') => out.push(s.split('.').next().unwrap().to_string()),
+            Value::Array(a) => a.iter().for_each(|x| strings(x, out)),
+            Value::Object(o) => o.iter().for_each(|(k, x)| {
+                if k.starts_with('/') {
+                    out.push(k.clone());
+                }
+                strings(x, out)
+            }),
+            _ => {}
+        }
+    }
+    strings(&layout["configById"], &mut layout_topics);
+    assert!(layout_topics.len() >= 10, "{layout_topics:?}");
+    for t in &layout_topics {
+        assert!(channels.contains_key(t), "the layout's {t} is not published");
+    }
+    for topic in want {
+        let n = received.get(topic).map_or(0, |v| v.len());
+        assert!(n > 0, "nothing received on {topic}: {:?}", received.keys().collect::<Vec<_>>());
+    }
+
+    // The estimate: JSON with the vehicle's clock as log time, in order, on the pad then climbing.
+    let poses = &received["/estimate/pose"];
+    assert!(poses.len() > 100, "{} poses", poses.len());
+    assert!(poses.windows(2).all(|w| w[0].0 <= w[1].0), "log times in order");
+    let last: Value = serde_json::from_slice(&poses.last().unwrap().1).unwrap();
+    let (y, z) =
+        (last["pose"]["position"]["y"].as_f64().unwrap(), last["pose"]["position"]["z"].as_f64().unwrap());
+    assert!(poses.last().unwrap().0 <= 4_000_000_000, "log time is the flight's clock (ns)");
+    assert!((0.5..2.5).contains(&y) && z > 0.0, "{last}");
+    // Images: JPEG forward frames, 160x120 mono8 downward ones.
+    for (_, b) in &received["/camera/forward/image"] {
+        let img = CompressedImage::decode(b.as_slice()).unwrap();
+        assert_eq!(img.format, "jpeg");
+        assert_eq!(&img.data[..3], &[0xFF, 0xD8, 0xFF], "a JPEG");
+    }
+    for (_, b) in &received["/camera/down/image"] {
+        let img = RawImage::decode(b.as_slice()).unwrap();
+        assert_eq!(
+            (img.encoding.as_str(), img.step as usize * img.height as usize),
+            ("mono8", img.data.len())
+        );
+    }
+    // What the vision found: edges and corners once the line is in view, the line reprojected from the
+    // estimate; the downward camera's tracks with their flow.
+    let kinds = |topic: &str| -> Vec<Vec<i32>> {
+        received[topic]
+            .iter()
+            .map(|(_, b)| {
+                ImageAnnotations::decode(b.as_slice()).unwrap().points.iter().map(|p| p.r#type).collect()
+            })
+            .collect()
+    };
+    let fwd = kinds("/camera/forward/annotations");
+    let loop_ = points_annotation::Type::LineLoop as i32;
+    let list = points_annotation::Type::LineList as i32;
+    assert!(
+        fwd.iter().any(|k| k.contains(&loop_) && k.iter().filter(|t| **t == list).count() >= 2),
+        "{fwd:?}"
+    );
+    let down = kinds("/camera/down/annotations");
+    assert!(down.iter().any(|k| k.contains(&list)), "{down:?}");
+    // The body frames and the scene.
+    let tf = FrameTransforms::decode(received["/tf"].last().unwrap().1.as_slice()).unwrap();
+    let children: Vec<_> = tf.transforms.iter().map(|t| t.child_frame_id.as_str()).collect();
+    assert_eq!(children, ["base_link", "base_link_truth"]);
+    let scene = SceneUpdate::decode(received["/scene"].last().unwrap().1.as_slice()).unwrap();
+    let ids: Vec<_> = scene.entities.iter().map(|e| e.id.as_str()).collect();
+    assert_eq!(ids, ["wall", "vehicle_estimate", "vehicle_truth"]);
+
+    // The summary counts what went out.
+    let summary: Value = serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    assert!(summary["live"]["max_clients"].as_u64().unwrap() >= 1, "{}", summary["live"]);
+    assert!(summary["live"]["messages"].as_u64().unwrap() > 1000, "{}", summary["live"]);
+    assert!(err.contains("live view: "), "{err}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[cfg(not(feature = "live"))]
+#[test]
+fn live_needs_the_feature() {
+    let out = tmp("nofeature");
+    let r = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args(["fly", "--live", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(r.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("built without the live view") && err.contains("--features live"), "{err}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[cfg(feature = "live")]
+#[test]
+fn live_refuses_a_bad_address() {
+    let out = tmp("bad");
+    let r = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args(["fly", "--live", "localhost-8765", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(r.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(err.contains("--live localhost-8765: expected HOST:PORT"), "{err}");
+    let _ = std::fs::remove_dir_all(&out);
+}
