@@ -51,7 +51,7 @@ const SCENE_EVERY_US: u64 = 100_000;
 /// What the live view sent, skipped and dropped.
 #[derive(Clone, Copy, Debug, Default, Serialize, PartialEq, Eq)]
 pub struct LiveStats {
-    /// Messages published (all topics).
+    /// Messages published (all topics; a message is made only for a topic some viewer subscribed to).
     pub messages: u64,
     /// Forward images published.
     pub forward_images: u64,
@@ -368,8 +368,13 @@ impl Publisher {
         let mut msgs: Vec<Msg> = Vec::new();
         export::topics(r, self.step_us, &mut msgs);
         for m in msgs {
-            if let (Some(c), Ok(bytes)) = (self.json_channel(m.topic, m.schema), serde_json::to_vec(&m.value))
-            {
+            // Channels are advertised from their first message on; a message is encoded only for a channel
+            // some viewer subscribed to.
+            let Some(c) = self.json_channel(m.topic, m.schema) else { continue };
+            if !c.has_sinks() {
+                continue;
+            }
+            if let Ok(bytes) = serde_json::to_vec(&m.value) {
                 c.log_with_meta(&bytes, meta(m.time_us));
                 self.messages += 1;
             }
@@ -409,11 +414,11 @@ impl Publisher {
         if let Some(t) = self.truth {
             transforms.push(tf("base_link_truth", t));
         }
-        if !transforms.is_empty() {
+        if !transforms.is_empty() && self.transforms.has_sinks() {
             self.transforms.log_with_meta(&FrameTransforms { transforms }, meta(t_us));
             self.messages += 1;
         }
-        if t_us >= self.next_scene_us {
+        if t_us >= self.next_scene_us && self.scene.has_sinks() {
             self.next_scene_us = t_us + SCENE_EVERY_US;
             self.scene.log_with_meta(&scene(&self.scenario, t_us, self.truth.is_some()), meta(t_us));
             self.messages += 1;
@@ -421,6 +426,14 @@ impl Publisher {
     }
 
     fn forward(&mut self, t_us: u64, img: &RgbImage, detection: Option<&LineObservation>) {
+        if self.forward_annotations.has_sinks() {
+            let annotations = forward_annotations(&self.scenario, t_us, detection, self.estimate);
+            self.forward_annotations.log_with_meta(&annotations, meta(t_us));
+            self.messages += 1;
+        }
+        if !self.forward_image.has_sinks() {
+            return;
+        }
         let mut jpeg = Vec::new();
         let enc = jpeg_encoder::Encoder::new(&mut jpeg, FORWARD_JPEG_QUALITY);
         if enc.encode(&img.data, img.width as u16, img.height as u16, jpeg_encoder::ColorType::Rgb).is_err() {
@@ -433,13 +446,18 @@ impl Publisher {
             format: "jpeg".into(),
         };
         self.forward_image.log_with_meta(&msg, meta(t_us));
-        let annotations = forward_annotations(&self.scenario, t_us, detection, self.estimate);
-        self.forward_annotations.log_with_meta(&annotations, meta(t_us));
-        self.messages += 2;
+        self.messages += 1;
         self.forward_images += 1;
     }
 
     fn down(&mut self, t_us: u64, img: &GrayImage, tracks: &[(Vec2, Vec2, bool)]) {
+        if self.down_annotations.has_sinks() {
+            self.down_annotations.log_with_meta(&down_annotations(t_us, tracks), meta(t_us));
+            self.messages += 1;
+        }
+        if !self.down_image.has_sinks() {
+            return;
+        }
         let msg = RawImage {
             timestamp: stamp(t_us),
             frame_id: "camera_down".into(),
@@ -450,8 +468,7 @@ impl Publisher {
             data: img.data.clone().into(),
         };
         self.down_image.log_with_meta(&msg, meta(t_us));
-        self.down_annotations.log_with_meta(&down_annotations(t_us, tracks), meta(t_us));
-        self.messages += 2;
+        self.messages += 1;
         self.down_images += 1;
     }
 }

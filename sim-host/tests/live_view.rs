@@ -260,6 +260,26 @@ fn live_needs_the_feature() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+/// Without a viewer nothing is encoded: the flight's records and frames are handed over and the publisher
+/// makes no message.
+#[cfg(feature = "live")]
+#[test]
+fn an_unwatched_live_view_encodes_nothing() {
+    let out = tmp("unwatched");
+    let r = Command::new(env!("CARGO_BIN_EXE_sim-host"))
+        .args(["fly", "--live", "127.0.0.1:0", "--live-wait", "0", "--duration", "3", "--no-plots", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let summary: Value = serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    let live = &summary["live"];
+    assert_eq!((live["messages"].as_u64(), live["max_clients"].as_u64()), (Some(0), Some(0)), "{live}");
+    // The frames were offered all the same (the first of each camera passes the image rate).
+    assert!(live["frames_skipped_for_rate"].as_u64().unwrap() > 0, "{live}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
 #[cfg(feature = "live")]
 #[test]
 fn live_refuses_a_bad_address() {
