@@ -385,6 +385,13 @@ impl Publisher {
                 self.estimate = Some((e.position_m, e.q));
                 self.frames(self.step_us);
             }
+            // A station's view: the estimate as the telemetry brought it, at the station's clock.
+            LogRecord::Station(crate::flightlog::StationEvent::Received { station_time_us, message }) => {
+                if let Some(tm) = message.telemetry() {
+                    self.estimate = Some((tm.estimate.position_m, tm.estimate.q));
+                    self.frames(*station_time_us);
+                }
+            }
             LogRecord::Truth { position_m, attitude_rad, .. } => {
                 let att = geometry::frames::Attitude {
                     roll: attitude_rad[0],

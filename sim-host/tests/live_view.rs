@@ -4,6 +4,8 @@
 //! The client runs with the `live` feature only (`cargo test -p sim-host --features live --test live_view`;
 //! CI runs it); without it, the flag's refusal is tested.
 
+mod common;
+
 use std::process::Command;
 #[cfg(feature = "live")]
 use {
@@ -63,19 +65,6 @@ fn a_foxglove_client_sees_the_flight_live() {
         line.trim().strip_prefix("live view ").unwrap_or_else(|| panic!("stdout: {line:?}")).to_string();
     assert!(url.starts_with("ws://127.0.0.1:"), "{url}");
 
-    let mut req = url.as_str().into_client_request().unwrap();
-    req.headers_mut().insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
-    let (mut ws, resp) = tungstenite::connect(req).unwrap();
-    assert_eq!(resp.headers()["Sec-WebSocket-Protocol"], "foxglove.sdk.v1");
-    if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_ref() {
-        s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-    }
-
-    // topic -> (channel id, encoding, schema name); subscription id -> topic; what arrived per topic.
-    let mut channels: BTreeMap<String, (u64, String, String)> = BTreeMap::new();
-    let mut subscribed: BTreeMap<u32, String> = BTreeMap::new();
-    let mut received: BTreeMap<String, Vec<(u64, Vec<u8>)>> = BTreeMap::new();
-    let mut server_info = Value::Null;
     let want = [
         "/estimate/pose",
         "/status",
@@ -87,58 +76,7 @@ fn a_foxglove_client_sees_the_flight_live() {
         "/tf",
         "/scene",
     ];
-    let t0 = Instant::now();
-    loop {
-        let msg = match ws.read() {
-            Ok(m) => m,
-            // The flight ended and the server closed.
-            Err(_) => break,
-        };
-        match msg {
-            Message::Text(t) => {
-                let v: Value = serde_json::from_str(&t).unwrap();
-                match v["op"].as_str() {
-                    Some("serverInfo") => server_info = v,
-                    Some("advertise") => {
-                        let mut subs = Vec::new();
-                        for c in v["channels"].as_array().unwrap() {
-                            let topic = c["topic"].as_str().unwrap().to_string();
-                            let id = c["id"].as_u64().unwrap();
-                            channels.insert(
-                                topic.clone(),
-                                (
-                                    id,
-                                    c["encoding"].as_str().unwrap().into(),
-                                    c["schemaName"].as_str().unwrap().into(),
-                                ),
-                            );
-                            if want.contains(&topic.as_str()) {
-                                let sid = subscribed.len() as u32 + 1;
-                                subscribed.insert(sid, topic);
-                                subs.push(json!({"id": sid, "channelId": id}));
-                            }
-                        }
-                        if !subs.is_empty() {
-                            let m = json!({"op": "subscribe", "subscriptions": subs}).to_string();
-                            ws.send(Message::Text(m.into())).unwrap();
-                        }
-                    }
-                    _ => {}
-                }
-            }
-            Message::Binary(b) => {
-                // Message data: opcode 1, subscription id (u32 LE), log time (u64 LE, ns), payload.
-                assert_eq!(b[0], 1, "opcode");
-                let sid = u32::from_le_bytes(b[1..5].try_into().unwrap());
-                let t = u64::from_le_bytes(b[5..13].try_into().unwrap());
-                let topic = subscribed[&sid].clone();
-                received.entry(topic).or_default().push((t, b[13..].to_vec()));
-            }
-            Message::Close(_) => break,
-            _ => {}
-        }
-        assert!(t0.elapsed() < Duration::from_secs(120), "the flight did not end");
-    }
+    let Watched { server_info, channels, received } = watch(&url, &want);
     let status = flight.0.wait().unwrap();
     let err = err_thread.join().unwrap();
     assert!(status.success(), "{err}");
@@ -260,6 +198,81 @@ fn live_needs_the_feature() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+/// `sim-host station --live` beside a virtual vehicle: the station's records at its own clock, both cameras
+/// with what its vision found, the estimate from the telemetry.
+#[cfg(feature = "live")]
+#[test]
+fn a_foxglove_client_sees_the_station_live() {
+    let dir = tmp("station");
+    let (mut vehicle, ports) = common::start_vehicle(
+        &dir.join("vehicle"),
+        &["--no-plots", "--duration", "40", "--seed", "2", "--connect-timeout", "30"],
+    );
+    let mut station = common::Killed(
+        Command::new(env!("CARGO_BIN_EXE_sim-host"))
+            .args([
+                "station",
+                "--link",
+                &ports["link"],
+                "--forward",
+                &ports["forward"],
+                "--down",
+                &ports["down"],
+            ])
+            .args(["--no-key", "--script", "hover", "--duration", "40", "--live", "127.0.0.1:0", "--out"])
+            .arg(dir.join("station"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut line = String::new();
+    BufReader::new(station.0.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    let url =
+        line.trim().strip_prefix("live view ").unwrap_or_else(|| panic!("stdout: {line:?}")).to_string();
+    let want = [
+        "/station/downlink/telemetry",
+        "/station/uplink/vision",
+        "/camera/forward/image",
+        "/camera/forward/annotations",
+        "/camera/down/image",
+        "/camera/down/annotations",
+        "/tf",
+        "/scene",
+    ];
+    let Watched { channels, received, .. } = watch(&url, &want);
+    let st = common::wait(&mut station, Duration::from_secs(60), "the station");
+    let vs = common::wait(&mut vehicle, Duration::from_secs(30), "the virtual vehicle");
+    assert!(st.success() && vs.success(), "station {st}, vehicle {vs}");
+    for topic in want {
+        assert!(received.get(topic).is_some_and(|v| !v.is_empty()), "nothing on {topic}: {channels:?}");
+    }
+    // The station's clock (ns since the Unix epoch), not the vehicle's.
+    let (t, b) = received["/station/downlink/telemetry"].last().unwrap();
+    assert!(*t > 1_600_000_000_000_000_000, "{t}");
+    let tm: Value = serde_json::from_slice(b).unwrap();
+    assert!(tm["estimate"]["position_m"]["y"].as_f64().is_some(), "{tm}");
+    let (t_img, _) = received["/camera/forward/image"].last().unwrap();
+    assert!(t_img.abs_diff(*t) < 10_000_000_000, "images and records on one clock: {t_img} vs {t}");
+    // No truth at a station: the estimate's body frame only.
+    let tf = FrameTransforms::decode(received["/tf"].last().unwrap().1.as_slice()).unwrap();
+    let children: Vec<_> = tf.transforms.iter().map(|t| t.child_frame_id.as_str()).collect();
+    assert_eq!(children, ["base_link"]);
+    let fwd = &received["/camera/forward/annotations"];
+    let list = points_annotation::Type::LineList as i32;
+    assert!(
+        fwd.iter().any(|(_, b)| ImageAnnotations::decode(b.as_slice())
+            .unwrap()
+            .points
+            .iter()
+            .any(|p| p.r#type == list)),
+        "no detected edge drawn"
+    );
+    let s = common::read_json(&dir.join("station").join("station.json"));
+    assert!(s["live"]["max_clients"].as_u64().unwrap() >= 1, "{}", s["live"]);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Without a viewer nothing is encoded: the flight's records and frames are handed over and the publisher
 /// makes no message.
 #[cfg(feature = "live")]
@@ -293,4 +306,85 @@ fn live_refuses_a_bad_address() {
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(err.contains("--live localhost-8765: expected HOST:PORT"), "{err}");
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// What a viewer saw: the server's info, topic -> (channel id, encoding, schema name), and per subscribed
+/// topic its messages (log time ns, payload).
+#[cfg(feature = "live")]
+struct Watched {
+    server_info: Value,
+    channels: BTreeMap<String, (u64, String, String)>,
+    received: BTreeMap<String, Vec<(u64, Vec<u8>)>>,
+}
+
+/// Connects to `url` as Foxglove does, subscribes to the `want` topics as they are advertised, and reads
+/// until the server closes.
+#[cfg(feature = "live")]
+fn watch(url: &str, want: &[&str]) -> Watched {
+    let mut req = url.into_client_request().unwrap();
+    req.headers_mut().insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+    let (mut ws, resp) = tungstenite::connect(req).unwrap();
+    assert_eq!(resp.headers()["Sec-WebSocket-Protocol"], "foxglove.sdk.v1");
+    if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_ref() {
+        s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    }
+
+    // topic -> (channel id, encoding, schema name); subscription id -> topic; what arrived per topic.
+    let mut channels: BTreeMap<String, (u64, String, String)> = BTreeMap::new();
+    let mut subscribed: BTreeMap<u32, String> = BTreeMap::new();
+    let mut received: BTreeMap<String, Vec<(u64, Vec<u8>)>> = BTreeMap::new();
+    let mut server_info = Value::Null;
+    let t0 = Instant::now();
+    loop {
+        let msg = match ws.read() {
+            Ok(m) => m,
+            // The flight ended and the server closed.
+            Err(_) => break,
+        };
+        match msg {
+            Message::Text(t) => {
+                let v: Value = serde_json::from_str(&t).unwrap();
+                match v["op"].as_str() {
+                    Some("serverInfo") => server_info = v,
+                    Some("advertise") => {
+                        let mut subs = Vec::new();
+                        for c in v["channels"].as_array().unwrap() {
+                            let topic = c["topic"].as_str().unwrap().to_string();
+                            let id = c["id"].as_u64().unwrap();
+                            channels.insert(
+                                topic.clone(),
+                                (
+                                    id,
+                                    c["encoding"].as_str().unwrap().into(),
+                                    c["schemaName"].as_str().unwrap().into(),
+                                ),
+                            );
+                            if want.contains(&topic.as_str()) {
+                                let sid = subscribed.len() as u32 + 1;
+                                subscribed.insert(sid, topic);
+                                subs.push(json!({"id": sid, "channelId": id}));
+                            }
+                        }
+                        if !subs.is_empty() {
+                            let m = json!({"op": "subscribe", "subscriptions": subs}).to_string();
+                            ws.send(Message::Text(m.into())).unwrap();
+                        }
+                    }
+                    _ => {}
+                }
+            }
+            Message::Binary(b) => {
+                // Message data: opcode 1, subscription id (u32 LE), log time (u64 LE, ns), payload.
+                assert_eq!(b[0], 1, "opcode");
+                let sid = u32::from_le_bytes(b[1..5].try_into().unwrap());
+                let t = u64::from_le_bytes(b[5..13].try_into().unwrap());
+                let topic = subscribed[&sid].clone();
+                received.entry(topic).or_default().push((t, b[13..].to_vec()));
+            }
+            Message::Close(_) => break,
+            _ => {}
+        }
+        assert!(t0.elapsed() < Duration::from_secs(120), "the flight did not end");
+    }
+    Watched { server_info, channels, received }
 }

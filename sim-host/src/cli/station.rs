@@ -77,6 +77,12 @@ pub(crate) struct StationArgs {
     /// and its parameters. A loopback HOST binds the loopback interface only (docs/mavlink.md).
     #[arg(long, value_name = "udp:HOST:PORT")]
     pub(crate) mavlink: Option<String>,
+    /// Publish the station live for Foxglove or Lichtblick over the Foxglove WebSocket protocol on HOST:PORT
+    /// (default 127.0.0.1:8765; port 0: any free one, printed on stdout): the station's records (what it
+    /// sent and received, the telemetry), both cameras' frames with what its vision found, the vehicle's
+    /// estimate in 3D, at the station's clock (docs/live-view.md). Needs a build with `--features live`.
+    #[arg(long, value_name = "HOST:PORT", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    pub(crate) live: Option<String>,
 }
 
 pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
@@ -133,6 +139,7 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
         compact: a.compact,
         key,
         mavlink: a.mavlink.clone(),
+        live: a.live.clone(),
     };
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     // Ctrl-C ends the run with station.json written (the motors are the vehicle's: a real operator lands or

@@ -81,17 +81,25 @@ pub struct StationOptions {
     pub key: Option<protocol::auth::Key>,
     /// A MAVLink ground control station to serve (`udp:HOST:PORT`, docs/mavlink.md), if any.
     pub mavlink: Option<String>,
+    /// Publish the station live for Foxglove or Lichtblick on `HOST:PORT` (`crate::live`, the `live` feature).
+    pub live: Option<String>,
 }
 
 /// The station's flight log.
 struct Recorder {
     log: LogWriter,
     frames: Option<FrameEncoding>,
+    /// The live view's hand-over (`--live`): the log's records and the frames with what the vision made of them.
+    tap: Option<Box<dyn crate::sil::FlightTap>>,
 }
 
 impl Recorder {
     fn event(&mut self, e: StationEvent) -> Result<()> {
-        self.log.write(&LogRecord::Station(e)).context("the station's flight log")
+        let r = LogRecord::Station(e);
+        if let Some(tap) = self.tap.as_mut() {
+            tap.records(std::slice::from_ref(&r));
+        }
+        self.log.write(&r).context("the station's flight log")
     }
 
     fn frame(&mut self, f: Result<CameraFrame>) -> Result<()> {
@@ -136,7 +144,31 @@ pub fn run_station(
         reference_yaw_absolute: false,
         link_security: LinkSecurity::new(protocol::auth::Role::Station, opts.key).describe().to_string(),
     };
+    #[cfg(not(feature = "live"))]
+    if opts.live.is_some() {
+        bail!(
+            "--live: this sim-host was built without the live view; build it with `--features live` \
+             (`cargo run --release -p sim-host --features live -- station --live ...`)"
+        );
+    }
+    #[cfg(feature = "live")]
+    let live_view = match &opts.live {
+        None => None,
+        Some(addr) => {
+            let view = crate::live::LiveView::start(addr, &opts.scenario)?;
+            // On stdout, for whoever connects a viewer (a port 0 was chosen here).
+            println!("live view ws://{}", view.address());
+            use std::io::Write as _;
+            std::io::stdout().flush()?;
+            Some(view)
+        }
+    };
+    #[cfg(feature = "live")]
+    let tap = live_view.as_ref().map(|v| Box::new(v.tap()) as Box<dyn crate::sil::FlightTap>);
+    #[cfg(not(feature = "live"))]
+    let tap = None;
     let mut rec = Recorder {
+        tap,
         log: LogWriter::create(&opts.log, &header)?,
         frames: match opts.frames {
             FramePolicy::Drop => None,
@@ -144,7 +176,17 @@ pub fn run_station(
             FramePolicy::Raw => Some(FrameEncoding::Raw),
         },
     };
-    let result = station_loop(opts, stop, ui, &mut rec);
+    #[allow(unused_mut)]
+    let mut result = station_loop(opts, stop, ui, &mut rec);
+    #[cfg(feature = "live")]
+    if let Some(view) = live_view {
+        drop(rec.tap.take());
+        let ls = view.finish();
+        eprintln!("live view: {}", ls.describe());
+        if let Ok(st) = result.as_mut() {
+            st.live = serde_json::to_value(ls).ok();
+        }
+    }
     let records = rec.log.records;
     let kept = rec.log.finish();
     match (result, kept) {
@@ -473,6 +515,10 @@ fn station_loop(
             let rates = telemetry.map_or(geometry::Vec3::ZERO, |tm| tm.estimate.rates_rad_s);
             let timing = scenario.forward_row_timing(rates);
             let m = measure_forward(&mut vision, &img, vehicle_us, frame_seq, timing.as_ref());
+            // The live view shows the station's records at the station's clock: the frame at its stamp.
+            if let Some(tap) = rec.tap.as_mut() {
+                tap.forward_frame(stamp, &img, m.observation.as_ref());
+            }
             stats.forward_measured += m.observation.is_some() as u64;
             send(&Uplink::PackedVision(PackedVision::pack(&m)), &mut writer, rec)?;
             stats.uplink_vision += 1;
@@ -508,7 +554,12 @@ fn station_loop(
                     let hint = predicted.to_array();
                     rec.frame(CameraFrame::gray(CameraId::Downward, seq, vehicle_us, &img, hint, enc))?;
                 }
-                if let (Some(result), Some((t_prev, _))) = (fl.add(&img, predicted), prev_down) {
+                let flow_result = fl.add(&img, predicted);
+                if let Some(tap) = rec.tap.as_mut() {
+                    let tracks: Vec<_> = fl.last_tracks().collect();
+                    tap.down_frame(f.timestamp_us.unwrap_or(arrived), &img, &tracks);
+                }
+                if let (Some(result), Some((t_prev, _))) = (flow_result, prev_down) {
                     let m =
                         FlowMeasurement { t_prev_us: t_prev, t_next_us: vehicle_us, frame_seq: seq, result };
                     send(&Uplink::PackedFlow(PackedFlow::pack(&m)), &mut writer, rec)?;

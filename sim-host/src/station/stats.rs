@@ -75,4 +75,6 @@ pub struct StationStats {
     pub log_records: u64,
     /// The MAVLink ground control station's endpoint, when there is one: what the bridge took and sent.
     pub mavlink: Option<MavlinkStats>,
+    /// The live view's counts (`--live`, `crate::live::LiveStats`), when there is one.
+    pub live: Option<serde_json::Value>,
 }
