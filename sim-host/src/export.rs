@@ -1,13 +1,21 @@
 //! Export of a flight log to the formats engineers' tools open: MCAP (Foxglove, Lichtblick, PlotJuggler,
 //! Rerun) and CSV (spreadsheets, pandas, MATLAB).
 //!
-//! Both exports split the log into the same topics (docs/log-format.md, "Export"). In MCAP every topic is a
-//! channel with JSON messages and a JSON Schema; poses and images use the Foxglove well-known schemas
-//! (`foxglove.PoseInFrame`, `foxglove.CompressedImage` for PNG frames, `foxglove.RawImage` for raw frames) so
-//! that 3D and image panels show them without configuration. Message times are the vehicle's clock: a step's
-//! outputs at the step's time, a radio message at the step that received it, a frame at its capture time.
-use crate::flightlog::{CameraFrame, CameraId, FrameEncoding, LogHeader, LogItem, LogRecord, StationEvent};
+//! Both exports split the log into the same topics (docs/log-format.md, "Export"). In MCAP, whatever has a
+//! Foxglove well-known schema goes in the `foxglove` crate's typed schemas, protobuf-encoded, so that 3D and
+//! image panels show it without configuration: the poses (`foxglove.PoseInFrame`), the camera images
+//! (`foxglove.CompressedImage` for PNG frames, `foxglove.RawImage` for raw ones), the line reprojected from the
+//! estimate over the forward image (`foxglove.ImageAnnotations`), the body frames (`foxglove.FrameTransforms`)
+//! and the scene (`foxglove.SceneUpdate`, from the log header's scenario). Our own records are JSON messages
+//! with a JSON Schema. Message times are the records' clock: a step's outputs at the step's time, a radio
+//! message at the step that received it, a frame at its capture time, a station's records at the station's.
+use crate::flightlog::{CameraId, LogHeader, LogItem, LogRecord, StationEvent};
+use crate::foxglove_msgs::{self as fx, Bodies, Image};
+use crate::scenario::Scenario;
 use anyhow::{Context, Result};
+use foxglove::Encode;
+use foxglove::messages::PoseInFrame;
+use geometry::Vec3;
 use geometry::frames::Attitude;
 use serde_json::{Map, Value, json};
 use std::collections::BTreeMap;
@@ -19,7 +27,37 @@ pub(crate) struct Msg {
     pub(crate) topic: &'static str,
     pub(crate) schema: &'static str,
     pub(crate) time_us: u64,
-    pub(crate) value: Value,
+    pub(crate) body: Body,
+}
+
+/// A message's content: one of our records as JSON, or a pose in Foxglove's typed schema.
+pub(crate) enum Body {
+    /// JSON with the `timestamp` and `t_s` fields first (a JSON Schema named by [`Msg::schema`]).
+    Json(Value),
+    /// `foxglove.PoseInFrame`.
+    Pose(PoseInFrame),
+}
+
+impl Body {
+    /// The content as JSON (CSV cells; a pose as its `foxglove.PoseInFrame` fields with the time).
+    pub(crate) fn to_json(&self, time_us: u64) -> Value {
+        match self {
+            Body::Json(v) => v.clone(),
+            Body::Pose(p) => {
+                let (pos, q) = p
+                    .pose
+                    .as_ref()
+                    .map(|x| (x.position.unwrap_or_default(), x.orientation.unwrap_or_default()))
+                    .unwrap_or_default();
+                with_time(
+                    time_us,
+                    json!({"frame_id": p.frame_id,
+                           "pose": {"position": {"x": pos.x, "y": pos.y, "z": pos.z},
+                                    "orientation": {"x": q.x, "y": q.y, "z": q.z, "w": q.w}}}),
+                )
+            }
+        }
+    }
 }
 
 fn stamp(time_us: u64) -> Value {
@@ -30,12 +68,18 @@ fn xyz(v: [f32; 3]) -> Value {
     json!({"x": v[0], "y": v[1], "z": v[2]})
 }
 
-fn pose_in_frame(time_us: u64, frame: &str, p: [f32; 3], q: geometry::Quat) -> Value {
-    json!({
-        "timestamp": stamp(time_us),
-        "frame_id": frame,
-        "pose": {"position": xyz(p), "orientation": {"x": q.x, "y": q.y, "z": q.z, "w": q.w}},
-    })
+fn pose_msg(topic: &'static str, time_us: u64, p: [f32; 3], q: geometry::Quat) -> Msg {
+    Msg {
+        topic,
+        schema: "foxglove.PoseInFrame",
+        time_us,
+        body: Body::Pose(fx::pose_in_frame(time_us, "world", Vec3::new(p[0], p[1], p[2]), q)),
+    }
+}
+
+/// A JSON message with its time.
+fn timed(time_us: u64, v: Value) -> Body {
+    Body::Json(with_time(time_us, v))
 }
 
 fn with_time(time_us: u64, v: Value) -> Value {
@@ -61,7 +105,7 @@ pub(crate) fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
                     topic: "/imu",
                     schema: "wlq.ImuSample",
                     time_us: i.time_us,
-                    value: with_time(
+                    body: timed(
                         i.time_us,
                         json!({"gyro_rad_s": xyz(i.gyro_rad_s), "accel_m_s2": xyz(i.accel_m_s2)}),
                     ),
@@ -72,19 +116,14 @@ pub(crate) fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
                     topic: "/mag",
                     schema: "wlq.Magnetometer",
                     time_us: s.time_us,
-                    value: with_time(s.time_us, json!({"field": xyz(m.to_array())})),
+                    body: timed(s.time_us, json!({"field": xyz(m.to_array())})),
                 });
             }
         }
         LogRecord::Report(rep) => {
             let c = &rep.control;
             let e = &c.estimate;
-            out.push(Msg {
-                topic: "/estimate/pose",
-                schema: "foxglove.PoseInFrame",
-                time_us: step_us,
-                value: pose_in_frame(step_us, "world", e.position_m.to_array(), e.q),
-            });
+            out.push(pose_msg("/estimate/pose", step_us, e.position_m.to_array(), e.q));
             let mut est = v(e);
             if let Value::Object(o) = &mut est {
                 o.insert(
@@ -97,31 +136,31 @@ pub(crate) fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
                 topic: "/estimate",
                 schema: "wlq.StateEstimate",
                 time_us: step_us,
-                value: with_time(step_us, est),
+                body: timed(step_us, est),
             });
             out.push(Msg {
                 topic: "/setpoint",
                 schema: "wlq.Setpoint",
                 time_us: step_us,
-                value: with_time(step_us, v(&c.setpoint)),
+                body: timed(step_us, v(&c.setpoint)),
             });
             out.push(Msg {
                 topic: "/motors",
                 schema: "wlq.MotorCommands",
                 time_us: step_us,
-                value: with_time(step_us, json!({"rad_s": c.motors_rad_s})),
+                body: timed(step_us, json!({"rad_s": c.motors_rad_s})),
             });
             out.push(Msg {
                 topic: "/status",
                 schema: "wlq.Status",
                 time_us: step_us,
-                value: with_time(step_us, v(&c.status)),
+                body: timed(step_us, v(&c.status)),
             });
             out.push(Msg {
                 topic: "/counters",
                 schema: "wlq.Counters",
                 time_us: step_us,
-                value: with_time(
+                body: timed(
                     step_us,
                     json!({"vision": v(&rep.vision), "flow": v(&rep.flow_counters), "estimator": v(&rep.estimator)}),
                 ),
@@ -131,7 +170,7 @@ pub(crate) fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
                     topic: "/flow/outcome",
                     schema: "wlq.FlowOutcome",
                     time_us: step_us,
-                    value: with_time(step_us, v(f)),
+                    body: timed(step_us, v(f)),
                 });
             }
         }
@@ -142,29 +181,24 @@ pub(crate) fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
                 (_, Some(x)) => ("/link/flow", "wlq.FlowMeasurement", v(&x)),
                 _ => ("/link/other", "wlq.Uplink", v(m)),
             };
-            out.push(Msg { topic, schema, time_us: step_us, value: with_time(step_us, value) });
+            out.push(Msg { topic, schema, time_us: step_us, body: timed(step_us, value) });
         }
         LogRecord::Downlink(d) => {
             let (topic, schema, time_us, value) = match d.telemetry() {
                 Some(t) => ("/downlink/telemetry", "wlq.Telemetry", t.time_us, v(&t)),
                 None => ("/downlink/other", "wlq.Downlink", step_us, v(d)),
             };
-            out.push(Msg { topic, schema, time_us, value: with_time(time_us, value) });
+            out.push(Msg { topic, schema, time_us, body: timed(time_us, value) });
         }
         LogRecord::Truth { time_us, position_m, velocity_m_s, attitude_rad } => {
             let att = Attitude { roll: attitude_rad[0], pitch: attitude_rad[1], yaw: attitude_rad[2] };
             let q = geometry::Quat::from_mat3(&att.world_from_body());
-            out.push(Msg {
-                topic: "/truth/pose",
-                schema: "foxglove.PoseInFrame",
-                time_us: *time_us,
-                value: pose_in_frame(*time_us, "world", *position_m, q),
-            });
+            out.push(pose_msg("/truth/pose", *time_us, *position_m, q));
             out.push(Msg {
                 topic: "/truth",
                 schema: "wlq.Truth",
                 time_us: *time_us,
-                value: with_time(
+                body: timed(
                     *time_us,
                     json!({"position_m": xyz(*position_m), "velocity_m_s": xyz(*velocity_m_s),
                            "attitude_deg": {"roll": attitude_rad[0].to_degrees(),
@@ -177,17 +211,12 @@ pub(crate) fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
             let [w, x, y, z] = r.q_world_body;
             let q = geometry::Quat { w, x, y, z };
             let att = Attitude::from_world_from_body(&q.to_mat3());
-            out.push(Msg {
-                topic: "/reference/pose",
-                schema: "foxglove.PoseInFrame",
-                time_us: r.time_us,
-                value: pose_in_frame(r.time_us, "world", r.position_m.unwrap_or([0.0; 3]), q),
-            });
+            out.push(pose_msg("/reference/pose", r.time_us, r.position_m.unwrap_or([0.0; 3]), q));
             out.push(Msg {
                 topic: "/reference",
                 schema: "wlq.Reference",
                 time_us: r.time_us,
-                value: with_time(
+                body: timed(
                     r.time_us,
                     json!({"attitude_deg": {"roll": att.roll.to_degrees(), "pitch": att.pitch.to_degrees(),
                                             "yaw": att.yaw.to_degrees()},
@@ -216,98 +245,47 @@ pub(crate) fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
                     json!({"vehicle_time_us": vehicle_time_us, "bound_us": bound_us}),
                 ),
             };
-            out.push(Msg { topic, schema, time_us, value: with_time(time_us, value) });
+            out.push(Msg { topic, schema, time_us, body: timed(time_us, value) });
         }
         // Frames have topics of their own; the end record is the file's, not the flight's.
         LogRecord::Frame(_) | LogRecord::End { .. } => {}
     }
 }
 
-/// Serialisation to JSON values of any serde type, behind one object-safe trait.
+/// Serialisation to JSON values of any serde type, behind one object-safe trait. A value serde cannot
+/// represent in JSON becomes an object naming the error, never a silent `null`.
 mod erased {
     pub trait Ser {
         fn json(&self) -> serde_json::Value;
     }
     impl<T: serde::Serialize> Ser for T {
         fn json(&self) -> serde_json::Value {
-            serde_json::to_value(self).unwrap_or(serde_json::Value::Null)
+            serde_json::to_value(self)
+                .unwrap_or_else(|e| serde_json::json!({"serialisation_error": e.to_string()}))
         }
     }
 }
 
-fn camera_topic(c: CameraId) -> &'static str {
+/// The image topic of a camera.
+pub(crate) fn camera_topic(c: CameraId) -> &'static str {
     match c {
-        CameraId::Forward => "/camera/forward",
-        CameraId::Downward => "/camera/down",
+        CameraId::Forward => "/camera/forward/image",
+        CameraId::Downward => "/camera/down/image",
     }
 }
 
-/// A frame as a Foxglove image message (PNG: `CompressedImage`; raw: `RawImage`).
-fn image_message(f: &CameraFrame) -> (&'static str, Value) {
-    let frame_id = match f.camera {
-        CameraId::Forward => "camera_forward",
-        CameraId::Downward => "camera_down",
-    };
-    match f.encoding {
-        FrameEncoding::Png => (
-            "foxglove.CompressedImage",
-            json!({"timestamp": stamp(f.capture_time_us), "frame_id": frame_id, "format": "png",
-                   "data": base64(&f.data)}),
-        ),
-        FrameEncoding::Raw => (
-            "foxglove.RawImage",
-            json!({"timestamp": stamp(f.capture_time_us), "frame_id": frame_id, "width": f.width,
-                   "height": f.height, "encoding": if f.channels == 3 { "rgb8" } else { "mono8" },
-                   "step": f.width as u32 * f.channels as u32, "data": base64(&f.data)}),
-        ),
-    }
-}
+/// The forward image's annotations topic (the line reprojected from the estimate; live, also the detection).
+pub(crate) const FORWARD_ANNOTATIONS: &str = "/camera/forward/annotations";
+/// The body frames' topic.
+pub(crate) const TRANSFORMS: &str = "/tf";
+/// The scene's topic.
+pub(crate) const SCENE: &str = "/scene";
 
-/// Standard base64 (RFC 4648, with padding), as JSON carries bytes in the Foxglove schemas.
-pub fn base64(data: &[u8]) -> String {
-    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-    let mut s = String::with_capacity(data.len().div_ceil(3) * 4);
-    for c in data.chunks(3) {
-        let n = (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
-        s.push(A[(n >> 18) as usize & 63] as char);
-        s.push(A[(n >> 12) as usize & 63] as char);
-        s.push(if c.len() > 1 { A[(n >> 6) as usize & 63] as char } else { '=' });
-        s.push(if c.len() > 2 { A[n as usize & 63] as char } else { '=' });
-    }
-    s
-}
-
-/// JSON Schema of a channel: the Foxglove well-known schemas, or an object schema named after our record.
+/// JSON Schema of one of our records' channels: an object named after the record, with its time fields.
 pub(crate) fn schema_of(name: &str) -> Value {
     let time =
         json!({"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}});
-    let vec3 = json!({"type": "object", "properties": {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}}});
-    match name {
-        "foxglove.PoseInFrame" => json!({
-            "title": name, "type": "object",
-            "properties": {
-                "timestamp": time, "frame_id": {"type": "string"},
-                "pose": {"type": "object", "properties": {
-                    "position": vec3,
-                    "orientation": {"type": "object", "properties": {"x": {"type": "number"}, "y": {"type": "number"},
-                                    "z": {"type": "number"}, "w": {"type": "number"}}}}}
-            }
-        }),
-        "foxglove.CompressedImage" => json!({
-            "title": name, "type": "object",
-            "properties": {"timestamp": time, "frame_id": {"type": "string"}, "format": {"type": "string"},
-                           "data": {"type": "string", "contentEncoding": "base64"}}
-        }),
-        "foxglove.RawImage" => json!({
-            "title": name, "type": "object",
-            "properties": {"timestamp": time, "frame_id": {"type": "string"}, "width": {"type": "integer"},
-                           "height": {"type": "integer"}, "encoding": {"type": "string"}, "step": {"type": "integer"},
-                           "data": {"type": "string", "contentEncoding": "base64"}}
-        }),
-        _ => {
-            json!({"title": name, "type": "object", "properties": {"timestamp": time, "t_s": {"type": "number"}}})
-        }
-    }
+    json!({"title": name, "type": "object", "properties": {"timestamp": time, "t_s": {"type": "number"}}})
 }
 
 /// The intact records, each with the time of the last step before it (the time of a step's outputs and of the
@@ -338,6 +316,8 @@ pub struct ExportSummary {
     pub messages: BTreeMap<String, u64>,
     /// Damaged stretches of the log (skipped).
     pub damage: Vec<crate::flightlog::LogDamage>,
+    /// What could not be written, and why (e.g. the scene of a log whose header has no scenario).
+    pub notes: Vec<String>,
 }
 
 /// Writes a log's topics as an MCAP file.
@@ -370,6 +350,67 @@ pub fn export_mcap_to(
     }
 }
 
+/// The MCAP writer's channels: one per topic, a schema shared by the topics of one record type.
+struct Channels {
+    schemas: BTreeMap<String, u16>,
+    channels: BTreeMap<&'static str, (u16, u32)>,
+}
+
+impl Channels {
+    /// Writes one message on `topic` (the channel and its schema are written before its first message).
+    #[allow(clippy::too_many_arguments)]
+    fn put(
+        &mut self,
+        w: &mut mcap::Writer<crate::files::AtomicFile>,
+        summary: &mut ExportSummary,
+        topic: &'static str,
+        schema: impl FnOnce() -> Result<foxglove::Schema>,
+        message_encoding: &str,
+        time_us: u64,
+        data: &[u8],
+    ) -> Result<()> {
+        let (id, seq) = match self.channels.get_mut(topic) {
+            Some(c) => c,
+            None => {
+                let schema = schema()?;
+                let sid = match self.schemas.get(&schema.name) {
+                    Some(&sid) => sid,
+                    None => {
+                        let sid = w.add_schema(&schema.name, &schema.encoding, &schema.data)?;
+                        self.schemas.insert(schema.name.clone(), sid);
+                        sid
+                    }
+                };
+                let id = w.add_channel(sid, topic, message_encoding, &BTreeMap::new())?;
+                self.channels.entry(topic).or_insert((id, 0))
+            }
+        };
+        *seq += 1;
+        let t = time_us * 1000;
+        w.write_to_known_channel(
+            &mcap::records::MessageHeader { channel_id: *id, sequence: *seq, log_time: t, publish_time: t },
+            data,
+        )?;
+        *summary.messages.entry(topic.to_string()).or_insert(0) += 1;
+        Ok(())
+    }
+
+    /// Writes a message of one of Foxglove's typed schemas (protobuf).
+    fn put_typed<T: Encode>(
+        &mut self,
+        w: &mut mcap::Writer<crate::files::AtomicFile>,
+        summary: &mut ExportSummary,
+        topic: &'static str,
+        time_us: u64,
+        msg: &T,
+    ) -> Result<()> {
+        let mut buf = Vec::with_capacity(msg.encoded_len().unwrap_or(64));
+        msg.encode(&mut buf).map_err(|e| anyhow::anyhow!("{topic}: cannot encode the message: {e}"))?;
+        let schema = || T::get_schema().with_context(|| format!("{topic}: the message type has no schema"));
+        self.put(w, summary, topic, schema, &T::get_message_encoding(), time_us, &buf)
+    }
+}
+
 fn write_mcap(
     header: &LogHeader,
     records: impl Iterator<Item = LogItem>,
@@ -384,47 +425,61 @@ fn write_mcap(
     meta.insert("writer".to_string(), header.writer.clone());
     meta.insert("log_schema_hash".to_string(), header.schema_hash.clone());
     w.write_metadata(&mcap::records::Metadata { name: "flight".into(), metadata: meta })?;
-    let mut channels: BTreeMap<&'static str, u16> = BTreeMap::new();
     let mut summary = ExportSummary::default();
-    let mut msgs = Vec::new();
-    let mut seq: BTreeMap<u16, u32> = BTreeMap::new();
-    let mut put = |w: &mut mcap::Writer<crate::files::AtomicFile>,
-                   topic: &'static str,
-                   schema: &'static str,
-                   time_us: u64,
-                   data: &[u8]|
-     -> Result<()> {
-        let id = match channels.get(topic) {
-            Some(&id) => id,
-            None => {
-                let sid = w.add_schema(schema, "jsonschema", &serde_json::to_vec(&schema_of(schema))?)?;
-                let id = w.add_channel(sid, topic, "json", &BTreeMap::new())?;
-                channels.insert(topic, id);
-                id
-            }
-        };
-        let s = seq.entry(id).or_insert(0);
-        *s += 1;
-        let t = time_us * 1000;
-        w.write_to_known_channel(
-            &mcap::records::MessageHeader { channel_id: id, sequence: *s, log_time: t, publish_time: t },
-            data,
-        )?;
-        *summary.messages.entry(topic.to_string()).or_insert(0) += 1;
-        Ok(())
+    // The scene and the reprojected line need the flight's scenario (the wall, the line, the camera).
+    let scenario = match Scenario::from_toml(&header.scenario_toml) {
+        Ok(s) => Some(s),
+        Err(e) => {
+            summary.notes.push(format!(
+                "no {SCENE} and no {FORWARD_ANNOTATIONS}: the log header's scenario does not load ({e})"
+            ));
+            None
+        }
     };
-    for (step_us, r) in with_step_time(records, &mut summary.damage) {
+    let mut ch = Channels { schemas: BTreeMap::new(), channels: BTreeMap::new() };
+    let mut bodies = Bodies::default();
+    let mut msgs = Vec::new();
+    let mut damage = Vec::new();
+    for (_, r) in with_step_time(records, &mut damage) {
+        let changed = bodies.update(&r);
         if let LogRecord::Frame(f) = &r {
-            let (schema, v) = image_message(f);
-            put(w, camera_topic(f.camera), schema, f.capture_time_us, &serde_json::to_vec(&v)?)?;
+            let (topic, t) = (camera_topic(f.camera), f.capture_time_us);
+            match fx::image_message(f) {
+                Image::Compressed(m) => ch.put_typed(w, &mut summary, topic, t, &m)?,
+                Image::Raw(m) => ch.put_typed(w, &mut summary, topic, t, &m)?,
+            }
+            if let (CameraId::Forward, Some(s)) = (f.camera, &scenario) {
+                let a = fx::forward_annotations(s, t, None, bodies.estimate);
+                ch.put_typed(w, &mut summary, FORWARD_ANNOTATIONS, t, &a)?;
+            }
             continue;
         }
         msgs.clear();
-        topics(&r, step_us, &mut msgs);
+        topics(&r, bodies.step_us, &mut msgs);
         for m in &msgs {
-            put(w, m.topic, m.schema, m.time_us, &serde_json::to_vec(&m.value)?)?;
+            match &m.body {
+                Body::Json(v) => {
+                    let schema = || {
+                        let data = serde_json::to_vec(&schema_of(m.schema))?;
+                        Ok(foxglove::Schema::new(m.schema, "jsonschema", data))
+                    };
+                    ch.put(w, &mut summary, m.topic, schema, "json", m.time_us, &serde_json::to_vec(v)?)?
+                }
+                Body::Pose(p) => ch.put_typed(w, &mut summary, m.topic, m.time_us, p)?,
+            }
+        }
+        if let Some(t) = changed {
+            if let Some(tf) = bodies.transforms(t) {
+                ch.put_typed(w, &mut summary, TRANSFORMS, t, &tf)?;
+            }
+            if let Some(s) = &scenario
+                && bodies.scene_due(t)
+            {
+                ch.put_typed(w, &mut summary, SCENE, t, &fx::scene(s, t, bodies.truth.is_some()))?;
+            }
         }
     }
+    summary.damage = damage;
     w.finish()?;
     Ok(summary)
 }
@@ -451,7 +506,7 @@ pub fn export_csv(
                 topic: "/frames",
                 schema: "",
                 time_us: f.capture_time_us,
-                value: with_time(
+                body: timed(
                     f.capture_time_us,
                     json!({"camera": f.camera, "seq": f.seq, "width": f.width, "height": f.height,
                            "channels": f.channels, "encoding": f.encoding, "bytes": f.data.len()}),
@@ -462,7 +517,7 @@ pub fn export_csv(
         }
         for m in msgs.drain(..) {
             let mut row = Vec::new();
-            flatten(&m.value, String::new(), &mut row);
+            flatten(&m.body.to_json(m.time_us), String::new(), &mut row);
             row.retain(|(k, _)| !k.starts_with("timestamp."));
             let t = tables.entry(m.topic).or_default();
             for (k, _) in &row {
@@ -525,21 +580,6 @@ fn csv_cell(s: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn base64_matches_rfc4648_vectors() {
-        for (i, o) in [
-            ("", ""),
-            ("f", "Zg=="),
-            ("fo", "Zm8="),
-            ("foo", "Zm9v"),
-            ("foob", "Zm9vYg=="),
-            ("fooba", "Zm9vYmE="),
-            ("foobar", "Zm9vYmFy"),
-        ] {
-            assert_eq!(base64(i.as_bytes()), o);
-        }
-    }
 
     #[test]
     fn nested_values_flatten_to_dotted_columns() {

@@ -7,6 +7,7 @@
 pub mod downward;
 pub mod export;
 pub mod fil;
+pub mod foxglove_msgs;
 /// The flight log and atomic file writes live in their own crate, re-exported under their old paths.
 pub use flightlog::{self, files};
 pub mod fly;

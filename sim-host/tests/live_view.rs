@@ -11,9 +11,11 @@ use std::process::Command;
 use {
     foxglove::Decode,
     foxglove::messages::{
-        CompressedImage, FrameTransforms, ImageAnnotations, RawImage, SceneUpdate, points_annotation,
+        CompressedImage, FrameTransforms, ImageAnnotations, PoseInFrame, RawImage, SceneUpdate,
+        points_annotation,
     },
     serde_json::{Value, json},
+    sim_host::flightlog::{CameraId, LogRecord},
     std::collections::BTreeMap,
     std::io::{BufRead, BufReader},
     std::process::{Child, Stdio},
@@ -21,6 +23,12 @@ use {
     tungstenite::Message,
     tungstenite::client::IntoClientRequest,
 };
+
+/// Mean absolute difference (grey levels per channel) between a JPEG sent live (quality 80) and the logged
+/// frame: measured 2.9-3.3 on the paper scenario's noisy frames (the frame before differs by 3.2-10.6, so each
+/// image must also be closer to its own frame than to that one).
+#[cfg(feature = "live")]
+const MAX_JPEG_MEAN_ERROR: f64 = 4.0;
 
 /// The flight's process, killed when the test ends however it ends.
 #[cfg(feature = "live")]
@@ -49,7 +57,7 @@ fn a_foxglove_client_sees_the_flight_live() {
     // Port 0: a free one, printed on stdout. Real time, so that the client has the time to subscribe.
     let mut child = Command::new(env!("CARGO_BIN_EXE_sim-host"))
         .args(["fly", "--live", "127.0.0.1:0", "--live-wait", "30", "--real-time", "--duration", "4"])
-        .args(["--no-plots", "--out"])
+        .args(["--frames", "png", "--no-plots", "--out"])
         .arg(&out)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -84,8 +92,8 @@ fn a_foxglove_client_sees_the_flight_live() {
 
     // Every topic advertised with its schema: JSON for the export's topics, protobuf for the typed ones.
     let expect = [
-        ("/estimate/pose", "json", "foxglove.PoseInFrame"),
-        ("/truth/pose", "json", "foxglove.PoseInFrame"),
+        ("/estimate/pose", "protobuf", "foxglove.PoseInFrame"),
+        ("/truth/pose", "protobuf", "foxglove.PoseInFrame"),
         ("/status", "json", "wlq.Status"),
         ("/imu", "json", "wlq.ImuSample"),
         ("/camera/forward/image", "protobuf", "foxglove.CompressedImage"),
@@ -126,27 +134,88 @@ fn a_foxglove_client_sees_the_flight_live() {
         assert!(n > 0, "nothing received on {topic}: {:?}", received.keys().collect::<Vec<_>>());
     }
 
-    // The estimate: JSON with the vehicle's clock as log time, in order, on the pad then climbing.
+    // The log of the same flight: what the viewer received must be what the log holds.
+    let log = sim_host::flightlog::read_log(&out.join(sim_host::flightlog::LOG_FILE)).unwrap();
+    let scenario = sim_host::scenario::Scenario::from_toml(&log.header.scenario_toml).unwrap();
+    let mut step_ns = 0u64;
+    let mut estimates: BTreeMap<u64, ([f32; 3], [f32; 4])> = BTreeMap::new();
+    let mut forward_frames: BTreeMap<u64, Vec<u8>> = BTreeMap::new();
+    for (_, r) in &log.records {
+        match r {
+            LogRecord::Step(s) => step_ns = s.time_us * 1000,
+            LogRecord::Report(rep) => {
+                let e = &rep.control.estimate;
+                estimates.insert(step_ns, (e.position_m.to_array(), [e.q.w, e.q.x, e.q.y, e.q.z]));
+            }
+            LogRecord::Frame(f) if f.camera == CameraId::Forward => {
+                forward_frames.insert(f.capture_time_us * 1000, f.data.clone());
+            }
+            _ => {}
+        }
+    }
+
+    // The estimate: protobuf poses at the flight's clock, in order, each the log's estimate of that step.
     let poses = &received["/estimate/pose"];
     assert!(poses.len() > 100, "{} poses", poses.len());
     assert!(poses.windows(2).all(|w| w[0].0 <= w[1].0), "log times in order");
-    let last: Value = serde_json::from_slice(&poses.last().unwrap().1).unwrap();
-    let (y, z) =
-        (last["pose"]["position"]["y"].as_f64().unwrap(), last["pose"]["position"]["z"].as_f64().unwrap());
+    for (t, b) in poses {
+        let pose = PoseInFrame::decode(b.as_slice()).unwrap().pose.unwrap();
+        let (p, q) = (pose.position.unwrap(), pose.orientation.unwrap());
+        let (lp, lq) = estimates.get(t).unwrap_or_else(|| panic!("no report in the log at {t} ns"));
+        assert_eq!([p.x as f32, p.y as f32, p.z as f32], *lp, "at {t} ns");
+        assert_eq!([q.w as f32, q.x as f32, q.y as f32, q.z as f32], *lq, "at {t} ns");
+    }
+    let (_, (last, _)) = estimates.last_key_value().unwrap();
     assert!(poses.last().unwrap().0 <= 4_000_000_000, "log time is the flight's clock (ns)");
-    assert!((0.5..2.5).contains(&y) && z > 0.0, "{last}");
-    // Images: JPEG forward frames, 160x120 mono8 downward ones.
-    for (_, b) in &received["/camera/forward/image"] {
+    assert!((0.5..2.5).contains(&last[1]) && last[2] > 0.0, "{last:?}");
+    // Images: JPEG forward frames, each the log's frame of that time up to the JPEG's loss; 160x120 mono8
+    // downward ones.
+    let mean_error = |a: &[u8], b: &[u8]| {
+        a.iter().zip(b).map(|(x, y)| (*x as f64 - *y as f64).abs()).sum::<f64>() / a.len() as f64
+    };
+    let mut worst_mean_error = 0.0f64;
+    for (t, b) in &received["/camera/forward/image"] {
         let img = CompressedImage::decode(b.as_slice()).unwrap();
         assert_eq!(img.format, "jpeg");
         assert_eq!(&img.data[..3], &[0xFF, 0xD8, 0xFF], "a JPEG");
+        let png = forward_frames.get(t).unwrap_or_else(|| panic!("no forward frame in the log at {t} ns"));
+        let logged = sim_host::imageio::rgb_from_png(png).unwrap();
+        let (w, h, px) = ground_station::v4l2::decode_jpeg(&img.data, 3).unwrap();
+        assert_eq!((w, h), (logged.width, logged.height));
+        let err = mean_error(&px, &logged.data);
+        worst_mean_error = worst_mean_error.max(err);
+        // Closer to its own frame than to the frame before it (a frame one period off is not "equal").
+        if let Some((_, before)) = forward_frames.range(..*t).next_back() {
+            let other = mean_error(&px, &sim_host::imageio::rgb_from_png(before).unwrap().data);
+            assert!(err < other, "at {t} ns: {err} from its frame, {other} from the one before");
+        }
     }
+    assert!(worst_mean_error < MAX_JPEG_MEAN_ERROR, "mean error {worst_mean_error} grey levels");
     for (_, b) in &received["/camera/down/image"] {
         let img = RawImage::decode(b.as_slice()).unwrap();
         assert_eq!(
             (img.encoding.as_str(), img.step as usize * img.height as usize),
             ("mono8", img.data.len())
         );
+    }
+    // The line over the forward image is where the log's latest estimate before the frame reprojects it (the
+    // frame is taken during its step, before that step's report).
+    for (t, b) in &received["/camera/forward/annotations"] {
+        let a = ImageAnnotations::decode(b.as_slice()).unwrap();
+        let Some(line) = a.points.iter().find(|p| p.r#type == points_annotation::Type::LineLoop as i32)
+        else {
+            continue;
+        };
+        let (_, (p, q)) = estimates.range(..*t).next_back().expect("a report before the frame");
+        let pose =
+            (geometry::Vec3::new(p[0], p[1], p[2]), geometry::Quat { w: q[0], x: q[1], y: q[2], z: q[3] });
+        let want = sim_host::foxglove_msgs::reprojected_corners(&scenario, pose).unwrap();
+        for (got, want) in line.points.iter().zip(want) {
+            assert!(
+                (got.x - want.x as f64).abs() < 1e-3 && (got.y - want.y as f64).abs() < 1e-3,
+                "at {t} ns"
+            );
+        }
     }
     // What the vision found: edges and corners once the line is in view, the line reprojected from the
     // estimate; the downward camera's tracks with their flow.

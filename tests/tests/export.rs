@@ -1,28 +1,59 @@
-//! Export: an MCAP file read back by the `mcap` crate's own reader has one channel per topic, the expected
-//! schemas and as many messages as the log has records of each kind; the CSV files agree.
+//! Export: an MCAP file read back by the `mcap` crate's own reader, and by Python's `mcap` and
+//! `mcap-protobuf-support` readers, has one channel per topic, Foxglove's protobuf schemas for poses, images,
+//! annotations, body frames and the scene, JSON Schemas for our records, and as many messages as the log has
+//! records of each kind, with their content; the CSV files agree.
+use foxglove::Decode;
+use foxglove::messages::{
+    CompressedImage, FrameTransforms, ImageAnnotations, PoseInFrame, SceneUpdate, points_annotation,
+};
 use sim_host::flightlog::{CameraId, FramePolicy, LogRecord, open_log, read_log};
+use sim_host::scenario::Scenario;
 use sim_host::sil::CameraMode;
 use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::{Command, Stdio};
 
-fn base64_decode(s: &str) -> Vec<u8> {
-    let val = |c: u8| match c {
-        b'A'..=b'Z' => c - b'A',
-        b'a'..=b'z' => c - b'a' + 26,
-        b'0'..=b'9' => c - b'0' + 52,
-        b'+' => 62,
-        b'/' => 63,
-        _ => panic!("not base64: {c}"),
-    };
-    let mut out = Vec::new();
-    for chunk in s.as_bytes().chunks(4) {
-        let n = chunk.iter().take_while(|&&c| c != b'=').count();
-        let mut acc = 0u32;
-        for (i, &c) in chunk.iter().enumerate() {
-            acc |= (if i < n { val(c) as u32 } else { 0 }) << (18 - 6 * i);
-        }
-        out.extend_from_slice(&acc.to_be_bytes()[1..n]);
+/// The Python with `mcap` and `mcap-protobuf-support`, or why there is none (a failure when
+/// `REQUIRE_PYTHON_MCAP=1`, as CI sets it).
+fn python_mcap() -> Option<String> {
+    let py = std::env::var("WLQ_PYTHON").unwrap_or_else(|_| "python3".into());
+    let ok = Command::new(&py)
+        .args(["-c", "import mcap, mcap_protobuf"])
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if ok {
+        return Some(py);
     }
-    out
+    let why =
+        format!("{py} has no mcap / mcap_protobuf (pip install mcap mcap-protobuf-support; set WLQ_PYTHON)");
+    if std::env::var("REQUIRE_PYTHON_MCAP").is_ok_and(|v| v == "1") {
+        panic!("REQUIRE_PYTHON_MCAP=1 but {why}");
+    }
+    eprintln!("SKIPPED (the Python readers' half): {why}");
+    None
+}
+
+/// What tests/python/read_mcap.py decoded from `mcap`.
+fn read_with_python(py: &str, mcap: &Path) -> serde_json::Value {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/read_mcap.py");
+    let out = Command::new(py).arg(&script).arg(mcap).output().expect("running the Python reader");
+    assert!(out.status.success(), "the Python reader failed: {}", String::from_utf8_lossy(&out.stderr));
+    serde_json::from_slice(&out.stdout).expect("the Python reader's JSON")
+}
+
+fn sha256_hex(data: &[u8]) -> String {
+    let out = Command::new("sha256sum")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .and_then(|mut c| {
+            use std::io::Write;
+            c.stdin.take().expect("stdin").write_all(data)?;
+            c.wait_with_output()
+        })
+        .expect("sha256sum");
+    String::from_utf8_lossy(&out.stdout).split_whitespace().next().unwrap_or_default().to_string()
 }
 
 #[test]
@@ -34,9 +65,12 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
     // What the log holds, counted independently of the exporter.
     let mut expected: BTreeMap<&str, u64> = BTreeMap::new();
     let mut add = |t: &'static str, n: u64| *expected.entry(t).or_insert(0) += n;
+    // The scene at the first report, then at the first report at least 0.1 s after the previous scene.
+    let (mut step_us, mut next_scene_us) = (0u64, 0u64);
     for (_, r) in &log.records {
         match r {
             LogRecord::Step(s) => {
+                step_us = s.time_us;
                 add("/imu", s.imu.len() as u64);
                 add("/mag", s.mag.is_some() as u64);
             }
@@ -45,6 +79,11 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
                     add(t, 1);
                 }
                 add("/flow/outcome", rep.flow.is_some() as u64);
+                add("/tf", 1);
+                if step_us >= next_scene_us {
+                    add("/scene", 1);
+                    next_scene_us = step_us + 100_000;
+                }
             }
             LogRecord::Link(m) if m.vision().is_some() => add("/link/vision", 1),
             LogRecord::Link(m) if m.flow().is_some() => add("/link/flow", 1),
@@ -59,8 +98,11 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
                 add("/reference/pose", 1);
                 add("/reference", 1);
             }
-            LogRecord::Frame(f) if f.camera == CameraId::Forward => add("/camera/forward", 1),
-            LogRecord::Frame(_) => add("/camera/down", 1),
+            LogRecord::Frame(f) if f.camera == CameraId::Forward => {
+                add("/camera/forward/image", 1);
+                add("/camera/forward/annotations", 1);
+            }
+            LogRecord::Frame(_) => add("/camera/down/image", 1),
             // The file's end record has no topic; a simulated flight's log has no station records (the
             // station's export is checked by sim-host/tests/station_e2e.rs).
             LogRecord::End { .. } => {}
@@ -68,14 +110,15 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
         }
     }
     expected.retain(|_, n| *n > 0);
-    assert_eq!(expected["/camera/forward"], 91);
+    assert_eq!(expected["/camera/forward/image"], 91);
     assert_eq!(expected["/estimate"], 1500);
+    assert_eq!(expected["/scene"], 30);
 
     let mcap_path = out.join("flight.mcap");
     let reader = open_log(&log_path).unwrap();
     let header = reader.header.clone();
     let s = sim_host::export::export_mcap(&header, reader, &mcap_path).unwrap();
-    assert!(s.damage.is_empty());
+    assert!(s.damage.is_empty() && s.notes.is_empty(), "{:?} {:?}", s.damage, s.notes);
 
     // Read back with the mcap crate: the summary section's statistics and channels.
     let bytes = std::fs::read(&mcap_path).unwrap();
@@ -88,30 +131,46 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
     let expected_owned: BTreeMap<String, u64> = expected.iter().map(|(k, v)| (k.to_string(), *v)).collect();
     assert_eq!(counts, expected_owned);
     assert_eq!(stats.message_count, expected.values().sum::<u64>());
+    // Foxglove's typed schemas (protobuf, the SDK's FileDescriptorSets) for what has one; JSON for ours.
+    let foxglove_schema = |topic: &str| match topic {
+        "/estimate/pose" | "/truth/pose" | "/reference/pose" => Some("foxglove.PoseInFrame"),
+        "/camera/forward/image" | "/camera/down/image" => Some("foxglove.CompressedImage"),
+        "/camera/forward/annotations" => Some("foxglove.ImageAnnotations"),
+        "/tf" => Some("foxglove.FrameTransforms"),
+        "/scene" => Some("foxglove.SceneUpdate"),
+        _ => None,
+    };
     for ch in summary.channels.values() {
-        assert_eq!(ch.message_encoding, "json");
         let schema = ch.schema.as_ref().expect("a schema");
-        assert_eq!(schema.encoding, "jsonschema");
-        let want = match ch.topic.as_str() {
-            "/estimate/pose" | "/truth/pose" => "foxglove.PoseInFrame",
-            "/camera/forward" | "/camera/down" => "foxglove.CompressedImage",
-            _ => "",
-        };
-        if !want.is_empty() {
-            assert_eq!(schema.name, want, "{}", ch.topic);
+        match foxglove_schema(&ch.topic) {
+            Some(name) => {
+                assert_eq!(
+                    (ch.message_encoding.as_str(), schema.encoding.as_str()),
+                    ("protobuf", "protobuf")
+                );
+                assert_eq!(schema.name, name, "{}", ch.topic);
+                assert!(schema.data.len() > 100, "{}: a FileDescriptorSet", ch.topic);
+            }
+            None => {
+                assert_eq!((ch.message_encoding.as_str(), schema.encoding.as_str()), ("json", "jsonschema"));
+                assert!(schema.name.starts_with("wlq."), "{}: {}", ch.topic, schema.name);
+                serde_json::from_slice::<serde_json::Value>(&schema.data).expect("the schema is JSON");
+            }
         }
-        serde_json::from_slice::<serde_json::Value>(&schema.data).expect("the schema is JSON");
     }
 
-    // Every message in order; the first forward image decodes to the logged frame, the poses to the reports.
-    let first_frame = log
+    // Every message in order: the forward images are the logged frames, the poses the reports; the line
+    // over the first image is where the estimate of the moment reprojects it; the last body frames are the
+    // last estimate and truth; the scene has the wall, the estimate and the truth.
+    let scenario = Scenario::from_toml(&header.scenario_toml).unwrap();
+    let frames: Vec<_> = log
         .records
         .iter()
-        .find_map(|(_, r)| match r {
+        .filter_map(|(_, r)| match r {
             LogRecord::Frame(f) if f.camera == CameraId::Forward => Some(f.clone()),
             _ => None,
         })
-        .unwrap();
+        .collect();
     let reports: Vec<_> = log
         .records
         .iter()
@@ -120,32 +179,152 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
             _ => None,
         })
         .collect();
-    let (mut images, mut poses) = (0, 0);
-    for m in mcap::MessageStream::new(&bytes).unwrap() {
-        let m = m.unwrap();
-        let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
-        match m.channel.topic.as_str() {
-            "/camera/forward" => {
-                if images == 0 {
-                    assert_eq!(v["format"], "png");
-                    let png = base64_decode(v["data"].as_str().unwrap());
-                    assert_eq!(png, first_frame.data);
-                    assert_eq!(m.log_time, first_frame.capture_time_us * 1000);
-                }
-                images += 1;
+    let mut last_truth = None;
+    // The truth when the last report came (the last body frames are written with the report).
+    let mut truth = None;
+    for (_, r) in &log.records {
+        match r {
+            LogRecord::Truth { position_m, .. } => truth = Some(*position_m),
+            LogRecord::Report(_) => last_truth = truth,
+            _ => {}
+        }
+    }
+    // The first forward frame after the first report, and the estimate it reprojects (an earlier frame has
+    // no estimate yet, hence no line).
+    let (mut latest, mut forward_seen, mut first_with_estimate) = (None, 0usize, None);
+    for (_, r) in &log.records {
+        match r {
+            LogRecord::Report(rep) => {
+                latest = Some((rep.control.estimate.position_m, rep.control.estimate.q))
             }
-            "/estimate/pose" => {
-                let e = &reports[poses];
-                let p = &v["pose"]["position"];
-                assert_eq!(p["y"].as_f64().unwrap() as f32, e.position_m.y);
-                assert_eq!(v["pose"]["orientation"]["w"].as_f64().unwrap() as f32, e.q.w);
-                assert_eq!(v["frame_id"], "world");
-                poses += 1;
+            LogRecord::Frame(f) if f.camera == CameraId::Forward => {
+                if let Some(e) = latest {
+                    first_with_estimate = Some((forward_seen, e));
+                    break;
+                }
+                forward_seen += 1;
             }
             _ => {}
         }
     }
-    assert_eq!((images, poses), (91, 1500));
+    let (line_frame, estimate) = first_with_estimate.expect("a forward frame after a report");
+    let expected_line = sim_host::foxglove_msgs::reprojected_corners(&scenario, estimate)
+        .expect("the line in front of the camera");
+    let (mut images, mut poses, mut annotations) = (0, 0, 0);
+    let (mut last_tf, mut last_scene) = (None, None);
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        match m.channel.topic.as_str() {
+            "/camera/forward/image" => {
+                let img = CompressedImage::decode(&m.data[..]).unwrap();
+                assert_eq!(img.format, "png");
+                assert_eq!(img.frame_id, "camera_forward");
+                assert_eq!(&img.data[..], &frames[images].data[..]);
+                assert_eq!(m.log_time, frames[images].capture_time_us * 1000);
+                images += 1;
+            }
+            "/camera/forward/annotations" => {
+                let a = ImageAnnotations::decode(&m.data[..]).unwrap();
+                let lines = a.points.iter().filter(|p| p.r#type == points_annotation::Type::LineLoop as i32);
+                assert_eq!(lines.count(), usize::from(annotations >= line_frame), "frame {annotations}");
+                if annotations == line_frame {
+                    let lines: Vec<_> = a
+                        .points
+                        .iter()
+                        .filter(|p| p.r#type == points_annotation::Type::LineLoop as i32)
+                        .collect();
+                    assert_eq!(lines.len(), 1, "one reprojected line");
+                    for (p, q) in lines[0].points.iter().zip(expected_line) {
+                        assert!(
+                            (p.x - q.x as f64).abs() < 1e-3 && (p.y - q.y as f64).abs() < 1e-3,
+                            "{p:?} {q:?}"
+                        );
+                    }
+                }
+                annotations += 1;
+            }
+            "/estimate/pose" => {
+                let v = PoseInFrame::decode(&m.data[..]).unwrap();
+                let e = &reports[poses];
+                let pose = v.pose.unwrap();
+                let (p, q) = (pose.position.unwrap(), pose.orientation.unwrap());
+                assert_eq!([p.x as f32, p.y as f32, p.z as f32], e.position_m.to_array());
+                assert_eq!([q.w as f32, q.x as f32, q.y as f32, q.z as f32], [e.q.w, e.q.x, e.q.y, e.q.z]);
+                assert_eq!(v.frame_id, "world");
+                poses += 1;
+            }
+            "/tf" => last_tf = Some(FrameTransforms::decode(&m.data[..]).unwrap()),
+            "/scene" => last_scene = Some(SceneUpdate::decode(&m.data[..]).unwrap()),
+            _ => {}
+        }
+    }
+    assert_eq!((images, poses, annotations), (91, 1500, 91));
+    let tf = last_tf.expect("body frames");
+    let by_child: BTreeMap<&str, [f64; 3]> = tf
+        .transforms
+        .iter()
+        .map(|t| {
+            assert_eq!(t.parent_frame_id, "world");
+            let v = t.translation.unwrap();
+            (t.child_frame_id.as_str(), [v.x, v.y, v.z])
+        })
+        .collect();
+    let last = reports.last().unwrap().position_m.to_array().map(|v| v as f64);
+    assert_eq!(by_child["base_link"], last);
+    assert_eq!(by_child["base_link_truth"], last_truth.unwrap().map(|v| v as f64));
+    let ids: Vec<_> = last_scene.expect("a scene").entities.iter().map(|e| e.id.clone()).collect();
+    assert_eq!(ids, ["wall", "vehicle_estimate", "vehicle_truth"]);
+
+    // The same file through Python's readers (Foxglove's own): the same channels, schemas and counts, every
+    // message decoded, the poses, images, body frames and scene equal to the log's.
+    if let Some(py) = python_mcap() {
+        let v = read_with_python(&py, &mcap_path);
+        let chans = v["channels"].as_object().unwrap();
+        let py_counts: BTreeMap<String, u64> =
+            chans.iter().map(|(k, c)| (k.clone(), c["count"].as_u64().unwrap())).collect();
+        assert_eq!(py_counts, expected_owned);
+        for (topic, c) in chans {
+            match foxglove_schema(topic) {
+                Some(name) => {
+                    assert_eq!(c["message_encoding"], "protobuf", "{topic}");
+                    assert_eq!(c["schema_name"], name, "{topic}");
+                }
+                None => assert_eq!(c["message_encoding"], "json", "{topic}"),
+            }
+        }
+        let py_poses = v["estimate_poses"].as_array().unwrap();
+        assert_eq!(py_poses.len(), reports.len());
+        for (p, e) in py_poses.iter().zip(&reports) {
+            let f = |i: usize| p[i].as_f64().unwrap() as f32;
+            assert_eq!([f(1), f(2), f(3)], e.position_m.to_array());
+            assert_eq!(f(7), e.q.w);
+        }
+        let py_images = v["forward_images"].as_array().unwrap();
+        assert_eq!(py_images.len(), frames.len());
+        for (i, f) in [0, frames.len() - 1].map(|i| (i, &frames[i])) {
+            assert_eq!(py_images[i][0].as_u64().unwrap(), f.capture_time_us * 1000);
+            assert_eq!(py_images[i][1], "png");
+            assert_eq!(py_images[i][2].as_str().unwrap(), sha256_hex(&f.data));
+        }
+        let tf = &v["tf_last"]["base_link"];
+        assert_eq!(tf[0], "world");
+        assert_eq!([1, 2, 3].map(|i| tf[i].as_f64().unwrap()), last);
+        assert_eq!(v["scene_last"], serde_json::json!(["wall", "vehicle_estimate", "vehicle_truth"]));
+        let first = &v["forward_annotations_first"];
+        assert_eq!(first["index"].as_u64(), Some(line_frame as u64));
+        let line: Vec<_> = first["points"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|a| a["type"] == points_annotation::Type::LineLoop as i32)
+            .collect();
+        assert_eq!(line.len(), 1);
+        for (p, q) in line[0]["points"].as_array().unwrap().iter().zip(expected_line) {
+            assert!((p[0].as_f64().unwrap() - q.x as f64).abs() < 1e-3, "{p} {q:?}");
+            assert!((p[1].as_f64().unwrap() - q.y as f64).abs() < 1e-3, "{p} {q:?}");
+        }
+        assert_eq!(v["metadata"]["flight"].as_array().unwrap().len(), 6);
+    }
 
     // CSV: one file per topic, a header with the time first, one row per message.
     let csv = out.join("csv");

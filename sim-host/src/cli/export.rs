@@ -9,7 +9,8 @@ use std::process::ExitCode;
 pub(crate) struct ExportArgs {
     /// The flight log.
     pub(crate) log: PathBuf,
-    /// Write an MCAP file: one channel per topic, JSON messages, Foxglove schemas for poses and images.
+    /// Write an MCAP file: one channel per topic; poses, images, body frames (/tf), the scene and the forward
+    /// image's annotations in Foxglove's protobuf schemas, our records as JSON with JSON Schemas.
     #[arg(long, value_name = "FILE")]
     pub(crate) mcap: Option<PathBuf>,
     /// Write one CSV file per topic into this directory (nested fields as dotted columns).
@@ -66,6 +67,9 @@ pub(crate) fn run_export(a: &ExportArgs) -> Result<ExitCode> {
         }
         for d in &s.damage {
             eprintln!("damaged record {d} (skipped)");
+        }
+        for n in &s.notes {
+            eprintln!("note: {n}");
         }
         damaged |= !s.damage.is_empty();
     }
