@@ -165,7 +165,8 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
     let mut sil = Sil::with_fc(&opts.scenario, opts.seed, opts.camera, &opts.fc)?;
     #[cfg(feature = "live")]
     if let Some(view) = &live_view {
-        sil.set_tap(Box::new(view.tap()));
+        // Paced to the wall clock: --real-time, or a MAVLink flight (which runs in real time).
+        sil.set_tap(Box::new(view.tap(opts.real_time.is_some() || opts.mavlink.is_some())));
     }
     let log_path = opts.out.join(crate::flightlog::LOG_FILE);
     if opts.log {

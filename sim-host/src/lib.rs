@@ -16,6 +16,7 @@ pub mod import;
 pub mod link_key;
 #[cfg(feature = "live")]
 pub mod live;
+pub mod live_rate;
 pub mod mavlink_endpoint;
 pub use vehicle_model as model;
 pub mod params_doc;

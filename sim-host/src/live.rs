@@ -19,6 +19,7 @@ use crate::export::{self, Body, Msg};
 use crate::flightlog::{CameraId, LogRecord};
 use crate::foxglove_msgs::{self as fx, Bodies, stamp};
 use crate::imageio::{GrayImage, RgbImage};
+use crate::live_rate::StepThinning;
 use crate::scenario::Scenario;
 use crate::sil::FlightTap;
 use anyhow::{Context as _, Result};
@@ -44,6 +45,10 @@ pub const IMAGE_RATE_HZ: f64 = 10.0;
 pub const FORWARD_JPEG_QUALITY: u8 = 80;
 /// The downward image's annotations topic (the tracked features and their flow; live only).
 pub const DOWN_ANNOTATIONS: &str = "/camera/down/annotations";
+/// A flight faster than real time sends its step-rate records (IMU, the step's report, the truth) at most
+/// this many times as densely as a real-time flight would: a viewer keeps up, and the simulation does not spend
+/// its time on copies nobody can watch. The radio's and the station's records always go out.
+pub const MAX_RECORD_SPEEDUP: f64 = 2.0;
 /// Items waiting for the publishing thread, at most (records of a step, or a frame).
 pub const QUEUE_LEN: usize = 4096;
 
@@ -58,6 +63,9 @@ pub struct LiveStats {
     pub down_images: u64,
     /// Frames not sent because the camera's image rate was reached (by design, [`IMAGE_RATE_HZ`]).
     pub frames_skipped_for_rate: u64,
+    /// Steps whose records (IMU, report, truth) were not sent because the flight ran faster than
+    /// [`MAX_RECORD_SPEEDUP`] times real time (by design; the log has them).
+    pub steps_thinned: u64,
     /// Batches of records dropped because the publishing thread was behind (the queue was full).
     pub record_batches_dropped: u64,
     /// Frames dropped because the publishing thread was behind.
@@ -72,13 +80,15 @@ impl LiveStats {
     /// One line for the terminal.
     pub fn describe(&self) -> String {
         format!(
-            "{} messages published ({} forward and {} downward images; {} frames skipped for the image rate); \
+            "{} messages published ({} forward and {} downward images; {} frames skipped for the image rate, \
+             {} steps thinned for the record rate); \
              dropped while the viewer was behind: {} record batches, {} frames; {} failed to encode; \
              at most {} viewer(s)",
             self.messages,
             self.forward_images,
             self.down_images,
             self.frames_skipped_for_rate,
+            self.steps_thinned,
             self.record_batches_dropped,
             self.frames_dropped,
             self.messages_failed,
@@ -96,6 +106,7 @@ enum Item {
 #[derive(Default)]
 struct Counters {
     frames_skipped_for_rate: AtomicU64,
+    steps_thinned: AtomicU64,
     record_batches_dropped: AtomicU64,
     frames_dropped: AtomicU64,
 }
@@ -115,6 +126,7 @@ pub struct LiveTap {
     tx: SyncSender<Item>,
     counters: Arc<Counters>,
     last_image: [Option<Instant>; 2],
+    thin: Option<StepThinning>,
 }
 
 impl LiveView {
@@ -165,8 +177,17 @@ impl LiveView {
     }
 
     /// The hand-over for the simulation ([`crate::sil::Sil::set_tap`]).
-    pub fn tap(&self) -> LiveTap {
-        LiveTap { tx: self.tx.clone(), counters: self.counters.clone(), last_image: [None; 2] }
+    ///
+    /// `paced`: the flight runs at the wall clock's pace (`--real-time`, a station, a MAVLink flight), so every
+    /// record goes out; otherwise the step-rate records are thinned to [`MAX_RECORD_SPEEDUP`] times real
+    /// time's density.
+    pub fn tap(&self, paced: bool) -> LiveTap {
+        LiveTap {
+            tx: self.tx.clone(),
+            counters: self.counters.clone(),
+            last_image: [None; 2],
+            thin: (!paced).then(|| StepThinning::new(MAX_RECORD_SPEEDUP)),
+        }
     }
 
     /// Publishes what is queued, then stops the server. The taps must have been dropped.
@@ -189,6 +210,7 @@ impl LiveView {
             forward_images,
             down_images,
             frames_skipped_for_rate: counters.frames_skipped_for_rate.load(Ordering::Relaxed),
+            steps_thinned: counters.steps_thinned.load(Ordering::Relaxed),
             record_batches_dropped: counters.record_batches_dropped.load(Ordering::Relaxed),
             frames_dropped: counters.frames_dropped.load(Ordering::Relaxed),
             messages_failed: failed,
@@ -228,9 +250,28 @@ impl LiveTap {
 
 impl FlightTap for LiveTap {
     fn records(&mut self, records: &[LogRecord]) {
+        // A step's records all go out, or (thinned) only its radio's and a station's.
+        let step = records.iter().find_map(|r| match r {
+            LogRecord::Step(s) => Some(s.time_us),
+            _ => None,
+        });
+        let step_due = match (&mut self.thin, step) {
+            (Some(th), Some(t_us)) => th.due(t_us, Instant::now()),
+            _ => true,
+        };
+        if !step_due {
+            self.counters.steps_thinned.fetch_add(1, Ordering::Relaxed);
+        }
         // The log's own frame records are not sent: the frames come through `forward_frame` / `down_frame`.
-        let kept: Vec<LogRecord> =
-            records.iter().filter(|r| !matches!(r, LogRecord::Frame(_))).cloned().collect();
+        let kept: Vec<LogRecord> = records
+            .iter()
+            .filter(|r| match r {
+                LogRecord::Frame(_) => false,
+                LogRecord::Step(_) | LogRecord::Report(_) | LogRecord::Truth { .. } => step_due,
+                _ => true,
+            })
+            .cloned()
+            .collect();
         if !kept.is_empty() {
             self.send(Item::Records(kept));
         }

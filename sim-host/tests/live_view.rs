@@ -248,6 +248,8 @@ fn a_foxglove_client_sees_the_flight_live() {
     let summary: Value = serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
     assert!(summary["live"]["max_clients"].as_u64().unwrap() >= 1, "{}", summary["live"]);
     assert!(summary["live"]["messages"].as_u64().unwrap() > 1000, "{}", summary["live"]);
+    // Paced to the wall clock, every step goes out (thinning is for flights faster than real time).
+    assert_eq!(summary["live"]["steps_thinned"], 0, "{}", summary["live"]);
     assert!(err.contains("live view: "), "{err}");
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -164,7 +164,7 @@ pub fn run_station(
         }
     };
     #[cfg(feature = "live")]
-    let tap = live_view.as_ref().map(|v| Box::new(v.tap()) as Box<dyn crate::sil::FlightTap>);
+    let tap = live_view.as_ref().map(|v| Box::new(v.tap(true)) as Box<dyn crate::sil::FlightTap>);
     #[cfg(not(feature = "live"))]
     let tap = None;
     let mut rec = Recorder {
