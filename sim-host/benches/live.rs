@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use tungstenite::Message;
 use tungstenite::client::IntoClientRequest;
 
-const RUNS: usize = 3;
+const RUNS: usize = 5;
 
 fn options(out: &std::path::Path, live: Option<LiveFly>) -> FlyOptions {
     FlyOptions {
@@ -41,9 +41,17 @@ fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
+/// What the client received.
+struct Received {
+    messages: u64,
+    bytes: u64,
+    /// Topics advertised, with the messages received on each.
+    topics: std::collections::BTreeMap<String, u64>,
+}
+
 /// Connects (retrying until the server is up), subscribes to every channel as it is advertised, and counts
-/// what arrives until the server closes: (messages, bytes, channels).
-fn client(port: u16) -> (u64, u64, usize) {
+/// what arrives until the server closes.
+fn client(port: u16) -> Received {
     let t0 = Instant::now();
     let mut ws = loop {
         let mut req = format!("ws://127.0.0.1:{port}").into_client_request().unwrap();
@@ -54,7 +62,10 @@ fn client(port: u16) -> (u64, u64, usize) {
             Err(e) => panic!("no live view on port {port}: {e}"),
         }
     };
-    let (mut messages, mut bytes, mut channels) = (0u64, 0u64, 0usize);
+    let (mut messages, mut bytes) = (0u64, 0u64);
+    let mut topics = std::collections::BTreeMap::new();
+    // Subscription id -> topic.
+    let mut subscribed: Vec<String> = Vec::new();
     while let Ok(msg) = ws.read() {
         match msg {
             Message::Text(t) => {
@@ -65,8 +76,10 @@ fn client(port: u16) -> (u64, u64, usize) {
                         .unwrap()
                         .iter()
                         .map(|c| {
-                            channels += 1;
-                            json!({"id": channels, "channelId": c["id"]})
+                            let topic = c["topic"].as_str().unwrap_or("?").to_string();
+                            topics.entry(topic.clone()).or_insert(0);
+                            subscribed.push(topic);
+                            json!({"id": subscribed.len(), "channelId": c["id"]})
                         })
                         .collect();
                     let m = json!({"op": "subscribe", "subscriptions": subs}).to_string();
@@ -76,12 +89,19 @@ fn client(port: u16) -> (u64, u64, usize) {
             Message::Binary(b) => {
                 messages += 1;
                 bytes += b.len() as u64;
+                // A message data frame: opcode 1, then the subscription id (u32, little-endian).
+                if b.len() >= 5 && b[0] == 1 {
+                    let id = u32::from_le_bytes([b[1], b[2], b[3], b[4]]) as usize;
+                    if let Some(t) = id.checked_sub(1).and_then(|k| subscribed.get(k)) {
+                        *topics.entry(t.clone()).or_insert(0) += 1;
+                    }
+                }
             }
             Message::Close(_) => break,
             _ => {}
         }
     }
-    (messages, bytes, channels)
+    Received { messages, bytes, topics }
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -102,12 +122,14 @@ fn main() {
         let opts =
             options(&dir.join("live"), Some(LiveFly { addr: format!("127.0.0.1:{port}"), wait_s: 30.0 }));
         let r = fly(&opts, |_, _| {}).expect("flight with --live");
-        let (messages, bytes, channels) = watcher.join().expect("the client");
+        let Received { messages, bytes, topics } = watcher.join().expect("the client");
+        let silent: Vec<&String> = topics.iter().filter(|(_, n)| **n == 0).map(|(t, _)| t).collect();
+        let channels = topics.len();
         let rtf_live = r.stats.sim_time_s / r.wall_time_s;
         live.push(rtf_live);
         println!(
             "run {}: {:.1} s simulated; real-time factor {rtf_plain:.2} without --live, {rtf_live:.2} with a client \
-             ({messages} messages, {:.1} MB, {channels} channels received; live: {})",
+             ({messages} messages, {:.1} MB, {channels} channels advertised, without a message: {silent:?}; live: {})",
             run + 1,
             r.stats.sim_time_s,
             bytes as f64 / 1e6,

@@ -114,6 +114,7 @@ struct Counters {
 /// A running live view: the server and its publishing thread.
 pub struct LiveView {
     server: foxglove::WebSocketServerHandle,
+    runtime: tokio::runtime::Runtime,
     addr: SocketAddr,
     tx: SyncSender<Item>,
     worker: std::thread::JoinHandle<Published>,
@@ -136,20 +137,35 @@ impl LiveView {
             .parse()
             .with_context(|| format!("--live {addr}: expected HOST:PORT, e.g. {DEFAULT_ADDR}"))?;
         let ctx = Context::new();
-        let server = WebSocketServer::new()
-            .name("wall-line quadrotor (sim-host)")
-            .bind(sock.ip().to_string(), sock.port())
-            .context(&ctx)
-            .start_blocking()
+        // The server's own runtime: one worker thread at background priority (the SDK's default runtime has a
+        // worker per core at the simulation's priority).
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .thread_name("live-view-server")
+            .on_thread_start(background_priority)
+            .enable_all()
+            .build()
+            .context("starting the live view's runtime")?;
+        let server = runtime
+            .block_on(
+                WebSocketServer::new()
+                    .name("wall-line quadrotor (sim-host)")
+                    .bind(sock.ip().to_string(), sock.port())
+                    .context(&ctx)
+                    .start(),
+            )
             .with_context(|| format!("--live {addr}: cannot start the WebSocket server"))?;
         let addr = SocketAddr::new(sock.ip(), server.port());
         let (tx, rx) = sync_channel(QUEUE_LEN);
         let publisher = Publisher::new(ctx, scenario);
         let worker = std::thread::Builder::new()
             .name("live-view".into())
-            .spawn(move || publisher.run(rx))
+            .spawn(move || {
+                background_priority();
+                publisher.run(rx)
+            })
             .context("starting the live view's thread")?;
-        Ok(Self { server, addr, tx, worker, counters: Arc::default(), max_clients: 0 })
+        Ok(Self { server, runtime, addr, tx, worker, counters: Arc::default(), max_clients: 0 })
     }
 
     /// The address it listens on.
@@ -193,7 +209,7 @@ impl LiveView {
     /// Publishes what is queued, then stops the server. The taps must have been dropped.
     pub fn finish(mut self) -> LiveStats {
         self.clients();
-        let Self { server, tx, worker, counters, max_clients, .. } = self;
+        let Self { server, runtime, tx, worker, counters, max_clients, .. } = self;
         drop(tx);
         // The worker ends when every sender is gone; a panic there is the publisher's bug: say so and keep
         // the flight's own results.
@@ -205,6 +221,7 @@ impl LiveView {
         // Give connected viewers a moment to receive the last messages before the server closes.
         std::thread::sleep(Duration::from_millis(200));
         server.stop().wait_blocking();
+        runtime.shutdown_timeout(Duration::from_secs(1));
         LiveStats {
             messages,
             forward_images,
@@ -216,6 +233,17 @@ impl LiveView {
             messages_failed: failed,
             max_clients,
         }
+    }
+}
+
+/// Lowers the calling thread to the lowest scheduling priority (nice 19): the live view's threads (encoding,
+/// the server) then use the cores the simulation leaves idle, and take little from it when it keeps every core
+/// busy (a flight faster than real time); what they cannot keep up with is dropped and counted, not waited
+/// for. Linux only (per-thread nice values); elsewhere the threads keep their priority.
+fn background_priority() {
+    #[cfg(target_os = "linux")]
+    if let Err(e) = rustix::process::setpriority_process(Some(rustix::thread::gettid()), 19) {
+        eprintln!("live view: could not lower a thread's priority ({e}); it competes with the simulation");
     }
 }
 

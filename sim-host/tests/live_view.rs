@@ -44,6 +44,20 @@ impl Drop for Flight {
     }
 }
 
+/// Each thread of process `pid` with its nice value (`/proc/PID/task/TID/stat`, the 19th field).
+#[cfg(all(feature = "live", target_os = "linux"))]
+fn thread_priorities(pid: u32) -> Vec<(String, i64)> {
+    let mut out = Vec::new();
+    for task in std::fs::read_dir(format!("/proc/{pid}/task")).unwrap() {
+        let stat = std::fs::read_to_string(task.unwrap().path().join("stat")).unwrap();
+        // "TID (NAME) STATE PPID ...": the fields after the name's closing parenthesis start at the 3rd.
+        let (open, close) = (stat.find('(').unwrap(), stat.rfind(')').unwrap());
+        let fields: Vec<&str> = stat[close + 2..].split_whitespace().collect();
+        out.push((stat[open + 1..close].to_string(), fields[19 - 3].parse().unwrap()));
+    }
+    out
+}
+
 fn tmp(name: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("wlq-live-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
@@ -72,6 +86,16 @@ fn a_foxglove_client_sees_the_flight_live() {
     let url =
         line.trim().strip_prefix("live view ").unwrap_or_else(|| panic!("stdout: {line:?}")).to_string();
     assert!(url.starts_with("ws://127.0.0.1:"), "{url}");
+    // The live view's threads (the publisher, the server's runtime) run at the lowest priority, so that they
+    // take only what the simulation leaves idle; the simulation's own threads keep theirs.
+    #[cfg(target_os = "linux")]
+    {
+        let threads = thread_priorities(flight.0.id());
+        let live: Vec<_> = threads.iter().filter(|(name, _)| name.starts_with("live-view")).collect();
+        assert!(live.len() >= 2, "the publisher and the server's worker: {threads:?}");
+        assert!(live.iter().all(|(_, nice)| *nice == 19), "{threads:?}");
+        assert!(threads.iter().any(|(name, nice)| name == "sim-host" && *nice == 0), "{threads:?}");
+    }
 
     let want = [
         "/estimate/pose",
