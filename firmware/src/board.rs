@@ -9,14 +9,13 @@
 //!   flags would hang) nor I2C, so the variant keeps the reset clock, has no sensors on the buses, feeds the flight
 //!   code a synthetic IMU at rest, and reports over semihosting after a fixed number of steps.
 //!
-//! Both share the UART queues (interrupt-driven, so that no byte is lost at 115200 baud while the loop runs)
-//! and the SysTick tick.
+//! Both share the UART queues (interrupt-driven, so that no byte is lost at 115200 baud while a step runs), the
+//! SysTick tick (whose exception runs the control loop, `sched.rs`) and the cycle counter.
 use control_core::estimator::ImuSample;
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::interrupt::Mutex;
 use cortex_m::peripheral::syst::SystClkSource;
-use cortex_m_rt::exception;
 use geometry::Vec3;
 use heapless::Deque;
 use protocol::auth::Nonce;
@@ -28,18 +27,21 @@ use stm32f4xx_hal::serial::{Config as SerialConfig, Rx, RxListen, Serial, Tx, Tx
 /// Radio link baud rate.
 pub const BAUD: u32 = 115_200;
 
-static TICKS: AtomicU32 = AtomicU32::new(0);
+/// The radio UART's interrupt priority (lower numbers are more urgent; the STM32F4 keeps the top four bits):
+/// above the control loop, so that no byte is lost at 115200 baud while a step runs (a byte every 87 us; a step
+/// takes up to 260 us).
+pub const UART_PRIORITY: u8 = 0x20;
+/// The control loop's (SysTick) priority (`sched.rs`).
+pub const TICK_PRIORITY: u8 = 0x80;
+
+/// Ticks (1 ms) since the tick started: the SysTick exception counts them (`sched.rs`).
+pub static TICKS: AtomicU32 = AtomicU32::new(0);
 static RX_QUEUE: Mutex<RefCell<Deque<u8, 1024>>> = Mutex::new(RefCell::new(Deque::new()));
 static TX_QUEUE: Mutex<RefCell<Deque<u8, 2048>>> = Mutex::new(RefCell::new(Deque::new()));
 /// The radio UART's two halves, owned by the interrupt handler once started.
 type UartHalves = (Tx<USART1>, Rx<USART1>);
 static UART: Mutex<RefCell<Option<UartHalves>>> = Mutex::new(RefCell::new(None));
 static RX_OVERFLOW: AtomicU32 = AtomicU32::new(0);
-
-#[exception]
-fn SysTick() {
-    TICKS.fetch_add(1, Ordering::Release);
-}
 
 #[interrupt]
 fn USART1() {
@@ -63,24 +65,85 @@ fn USART1() {
     });
 }
 
-fn start_uart(serial: Serial<USART1>) {
+fn start_uart(serial: Serial<USART1>, nvic: &mut pac::NVIC) {
     let (tx, mut rx) = serial.split();
     rx.listen();
     cortex_m::interrupt::free(|cs| UART.borrow(cs).replace(Some((tx, rx))));
     pac::NVIC::unpend(pac::Interrupt::USART1);
     #[allow(unsafe_code)]
-    // SAFETY: the handler only touches state behind critical sections, set up just above.
+    // SAFETY: the handler only touches state behind critical sections (which mask every priority), set up
+    // just above; its priority orders it before the control loop and changes no critical section's meaning.
     unsafe {
+        nvic.set_priority(pac::Interrupt::USART1, UART_PRIORITY);
         pac::NVIC::unmask(pac::Interrupt::USART1);
     }
 }
 
-fn start_tick(mut syst: cortex_m::peripheral::SYST, core_hz: u32) {
+/// Starts the 1 ms tick whose exception runs the control loop (`sched.rs`), at its priority: every
+/// `counts_per_tick` counts of the core clock.
+#[cfg(not(feature = "fil"))]
+fn start_tick(
+    mut syst: cortex_m::peripheral::SYST,
+    scb: &mut cortex_m::peripheral::SCB,
+    counts_per_tick: u32,
+) {
+    #[allow(unsafe_code)]
+    // SAFETY: the exception's state is its own or behind critical sections (which mask every priority).
+    unsafe {
+        scb.set_priority(cortex_m::peripheral::scb::SystemHandler::SysTick, TICK_PRIORITY);
+    }
     syst.set_clock_source(SystClkSource::Core);
-    syst.set_reload(core_hz / 1000 - 1);
+    syst.set_reload(counts_per_tick - 1);
     syst.clear_current();
     syst.enable_interrupt();
     syst.enable_counter();
+}
+
+/// Cycles from the tick that raised the running SysTick exception to now: SysTick counts down from its reload
+/// value and raises the exception when it reloads, so the count since then is the reload value minus the
+/// current one. Called first thing in the exception, it is the exception's start latency.
+#[cfg(not(feature = "fil"))]
+pub fn tick_latency() -> u32 {
+    cortex_m::peripheral::SYST::get_reload().saturating_sub(cortex_m::peripheral::SYST::get_current())
+}
+
+/// A free-running cycle count for measuring costs: the DWT cycle counter on the board.
+#[cfg(not(feature = "qemu"))]
+pub fn cycles() -> u32 {
+    cortex_m::peripheral::DWT::cycle_count()
+}
+
+/// A free-running cycle count for measuring costs: under QEMU (whose DWT reads 0) the tick number and the
+/// SysTick count, which counts the emulated CPU clock (read twice over when a tick comes between the reads).
+#[cfg(all(feature = "qemu", not(feature = "fil")))]
+pub fn cycles() -> u32 {
+    use cortex_m::peripheral::{SCB, SYST};
+    let reload = SYST::get_reload() + 1;
+    loop {
+        // A tick whose exception has not run yet (pending while a critical section or a more urgent
+        // interrupt runs) has reloaded the counter without being counted: count it here. Read again when a
+        // tick comes between the reads.
+        let (t1, p1) = (TICKS.load(Ordering::Acquire), SCB::is_pendst_pending());
+        let val = SYST::get_current();
+        let (t2, p2) = (TICKS.load(Ordering::Acquire), SCB::is_pendst_pending());
+        if t1 == t2 && p1 == p2 {
+            return t1.wrapping_add(p1 as u32).wrapping_mul(reload).wrapping_add(reload - 1 - val);
+        }
+    }
+}
+
+/// The firmware in the loop's cycle count: SysTick running free without interrupts, counting down from
+/// 2^24 - 1: the elapsed count, modulo 2^24.
+#[cfg(feature = "fil")]
+pub fn cycles() -> u32 {
+    0x00FF_FFFF - cortex_m::peripheral::SYST::get_current()
+}
+
+/// Cycles since `t0` (a value of [`cycles`]); with the free-running 24-bit SysTick of the firmware in the
+/// loop, for spans under 0.1 s.
+pub fn cycles_since(t0: u32) -> u32 {
+    let d = cycles().wrapping_sub(t0);
+    if cfg!(feature = "fil") { d & 0x00FF_FFFF } else { d }
 }
 
 /// Counters the loop keeps for reports.
@@ -92,9 +155,12 @@ pub struct RunStats {
     pub max_cost: u32,
     /// Sum of step costs (cycles).
     pub sum_cost: u64,
-    /// Largest cost of the background work after one step (pose solves; cycles).
+    /// Largest cost of the background work after one step (pose solves; cycles; the firmware in the loop's,
+    /// on the board `background.rs` counts them).
+    #[cfg(feature = "fil")]
     pub max_background: u32,
     /// Sum of background costs (cycles).
+    #[cfg(feature = "fil")]
     pub sum_background: u64,
     /// IMU reads that failed.
     pub imu_errors: u32,
@@ -116,6 +182,15 @@ pub struct RunStats {
     pub mode: control_core::FlightMode,
     /// The link decoder's counters.
     pub link: protocol::frame::DecodeCounters,
+    /// Ticks run by the control loop.
+    pub ticks: u32,
+    /// The largest and the summed start latency of the tick's exception (cycles from the tick to its first
+    /// instruction, `sched.rs`).
+    pub tick_latency_max: u32,
+    /// See `tick_latency_max`.
+    pub tick_latency_sum: u64,
+    /// The flight stack's vision counters after the last step.
+    pub vision: flight_core::VisionCounters,
 }
 
 impl RunStats {
@@ -126,12 +201,21 @@ impl RunStats {
         self.sum_cost += cost as u64;
     }
 
+    /// Adds a tick's start latency.
+    pub fn record_tick_latency(&mut self, cycles: u32) {
+        self.ticks += 1;
+        self.tick_latency_max = self.tick_latency_max.max(cycles);
+        self.tick_latency_sum += cycles as u64;
+    }
+
     /// Adds the cost of the radio's work before or after a step.
     pub fn record_link(&mut self, cost: u32) {
         self.max_link = self.max_link.max(cost);
     }
 
-    /// Adds the cost of the background work after a step.
+    /// Adds the cost of the background work after a step (the firmware in the loop, which runs it after each
+    /// step; on the board it runs in thread mode and counts itself, `background.rs`).
+    #[cfg(feature = "fil")]
     pub fn record_background(&mut self, cost: u32) {
         self.max_background = self.max_background.max(cost);
         self.sum_background += cost as u64;
@@ -167,10 +251,6 @@ pub fn halt(why: &'static str) -> ! {
 
 /// The board.
 pub struct Board {
-    last_tick: u32,
-    dwt: bool,
-    /// SysTick runs free without interrupts (firmware in the loop).
-    free_running: bool,
     /// Handshake nonces drawn.
     nonces: u32,
     /// Nonces the hardware RNG could not give.
@@ -184,32 +264,12 @@ impl Board {
         use sha2::Digest;
         let mut h = sha2::Sha256::new();
         h.update(self.nonces.to_le_bytes());
-        h.update(self.cycles().to_le_bytes());
+        h.update(cycles().to_le_bytes());
         h.update(TICKS.load(Ordering::Relaxed).to_le_bytes());
         let d = h.finalize();
         let mut n = [0u8; 16];
         n.copy_from_slice(&d[..16]);
         n
-    }
-
-    /// Waits for the next 1 ms tick and returns its number (ticks are never skipped: a late loop catches up).
-    ///
-    /// The check and the `wfi` are one critical section (see [`Board::rx_byte_or_sleep`]): a tick that fires
-    /// between them would otherwise be noticed only at the next one, 1 ms late.
-    pub fn wait_tick(&mut self) -> u32 {
-        loop {
-            let due = cortex_m::interrupt::free(|_| {
-                let due = TICKS.load(Ordering::Acquire) != self.last_tick;
-                if !due {
-                    cortex_m::asm::wfi();
-                }
-                due
-            });
-            if due {
-                self.last_tick = self.last_tick.wrapping_add(1);
-                return self.last_tick;
-            }
-        }
     }
 
     /// One byte from the radio, if any arrived.
@@ -276,30 +336,6 @@ impl Board {
             bytes.len()
         })
     }
-
-    /// Cycles since `t0` (a value of [`Board::cycles`]); with the free-running 24-bit SysTick of the
-    /// firmware-in-the-loop variant, for spans under 0.1 s.
-    pub fn cycles_since(&self, t0: u32) -> u32 {
-        let now = self.cycles();
-        if self.free_running { now.wrapping_sub(t0) & 0x00FF_FFFF } else { now.wrapping_sub(t0) }
-    }
-
-    /// A free-running cycle count for measuring the step's cost: the DWT cycle counter on the board; under QEMU
-    /// (whose DWT reads 0) the SysTick count, which counts the emulated CPU clock.
-    pub fn cycles(&self) -> u32 {
-        if self.free_running {
-            // Counts down from 2^24 - 1 without interrupts: the elapsed count, modulo 2^24.
-            return 0x00FF_FFFF - cortex_m::peripheral::SYST::get_current();
-        }
-        if self.dwt {
-            cortex_m::peripheral::DWT::cycle_count()
-        } else {
-            // SysTick counts down from its reload within each 1 ms tick; combine with the tick number.
-            let reload = cortex_m::peripheral::SYST::get_reload() + 1;
-            let val = cortex_m::peripheral::SYST::get_current();
-            TICKS.load(Ordering::Acquire).wrapping_mul(reload).wrapping_add(reload - 1 - val)
-        }
-    }
 }
 
 #[cfg(not(feature = "qemu"))]
@@ -328,7 +364,8 @@ mod variant {
     }
 
     impl Board {
-        /// Clocks, pins, sensors, speed controllers, UART, tick.
+        /// Clocks, pins, sensors, speed controllers, UART, tick (counting from here; the control loop runs on it
+        /// once `sched::start` hands it over).
         pub fn init() -> Self {
             let (Some(dp), Some(mut cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
                 halt("peripherals already taken")
@@ -385,18 +422,16 @@ mod variant {
             ) else {
                 halt("uart")
             };
-            start_uart(serial);
+            start_uart(serial, &mut cp.NVIC);
             cp.DCB.enable_trace();
             cp.DWT.enable_cycle_counter();
-            start_tick(cp.SYST, rcc.clocks.sysclk().raw());
-            Board {
-                last_tick: TICKS.load(Ordering::Acquire),
-                dwt: true,
-                free_running: false,
-                nonces: 0,
-                rng_errors: 0,
-                hw: Hardware { imu, mag, esc, rng: dp.RNG },
-            }
+            start_tick(cp.SYST, &mut cp.SCB, rcc.clocks.sysclk().raw() / 1000);
+            Board { nonces: 0, rng_errors: 0, hw: Hardware { imu, mag, esc, rng: dp.RNG } }
+        }
+
+        /// No synthetic frames on the board: its frames come over the radio.
+        pub fn synthetic_frames(&mut self, _time_us: u64) -> [Option<protocol::VisionMeasurement>; 2] {
+            [None; 2]
         }
 
         /// A fresh nonce for the link's handshake from the hardware RNG (RM0090, 24: 32 bits per 40 RNG
@@ -459,11 +494,13 @@ mod variant {
         pub fn after_step(&mut self, steps: u32, s: &RunStats) {
             if steps.is_multiple_of(2500) {
                 defmt::info!(
-                    "steps {} mode {} step max {} cycles mean {} link ok {} errors {} radio {} auth ok {} refused {} arm refused {} rng errors {}",
+                    "steps {} mode {} step max {} cycles mean {} tick latency max {} cycles solves {} link ok {} errors {} radio {} auth ok {} refused {} arm refused {} rng errors {}",
                     s.steps,
                     s.mode,
                     s.max_cost,
                     (s.sum_cost / s.steps.max(1) as u64) as u32,
+                    s.tick_latency_max,
+                    crate::background::SOLVES.load(Ordering::Relaxed),
                     s.link.ok,
                     s.link.errors(),
                     s.radio,
@@ -481,12 +518,67 @@ mod variant {
 mod variant {
     use super::*;
 
-    /// QEMU's netduinoplus2 clocks the Cortex-M4 (and SysTick) at 168 MHz whatever the RCC says.
-    pub const QEMU_CORE_HZ: u32 = 168_000_000;
+    /// QEMU's netduinoplus2 clocks SysTick at 168 MHz of virtual time whatever the RCC says; under `-icount
+    /// shift=0` an instruction takes 1 ns of virtual time, so SysTick counts 0.168 per instruction. A tick of
+    /// the board (1 ms at 168 MHz, one instruction per cycle: 168 000 instructions) is 28 224 counts: the
+    /// control loop then has the share of the core it has on the board, and a solve spans ticks as it does
+    /// there.
+    pub const QEMU_COUNTS_PER_TICK: u32 = 28_224;
+    /// Instructions per SysTick count under `-icount shift=0` (125 / 21 = 1 / 0.168).
+    pub fn instructions(counts: u64) -> u64 {
+        counts * 125 / 21
+    }
     /// Control steps before the report.
     pub const QEMU_STEPS: u32 = 1000;
 
-    pub struct Hardware;
+    /// Synthetic frames of the line (see [`Board::synthetic_frame`]).
+    const SYNTHETIC_FRAMES: usize = 8;
+    /// A synthetic frame every this many microseconds (29 Hz, about a camera's rate).
+    const SYNTHETIC_FRAME_EVERY_US: u64 = 34_000;
+    /// Synthetic frames start once the estimator has aligned (us).
+    const SYNTHETIC_FRAMES_FROM_US: u64 = 600_000;
+
+    pub struct Hardware {
+        /// The line as the forward camera sees it from 1.2 m, level, each a tenth of a millimetre further
+        /// along (a frame that repeats the one before bit for bit is refused as frozen).
+        frames: [Option<vision_core::LineObservation>; SYNTHETIC_FRAMES],
+        frame_seq: u32,
+    }
+
+    impl Hardware {
+        fn new() -> Self {
+            let v = flight_core::VisionConfig::default();
+            // Frames across the flight envelope (distance 1.0-1.56 m, along the line, yaw within 8 deg, roll and
+            // pitch within 0.8 deg), each
+            // edge point scattered by up to 0.5 px as a detector's are (a fixed pseudo-random sequence). The
+            // firmware in the loop takes its frames from the simulator.
+            let frames = core::array::from_fn(|k| {
+                if cfg!(feature = "fil") {
+                    return None;
+                }
+                let kf = k as f32;
+                let yaw = 0.14 * (kf / 3.5 - 1.0);
+                // Roll and pitch within 0.8 deg of the IMU's level: the attitude the solve takes from the IMU is
+                // off by that much, as an IMU's is in flight.
+                let tilt = 0.014 * (kf % 3.0 - 1.0);
+                let r_cw = geometry::frames::Attitude::new(tilt, -tilt, yaw)
+                    .world_from_body()
+                    .mul_mat(&v.mount.body_from_camera)
+                    .transpose();
+                let c =
+                    v.target.center() + Vec3::new(0.15 * (kf - 3.5), 1.0 + 0.08 * kf, 0.1 * (kf % 3.0 - 1.0));
+                let mut seed = 0x9E37_79B9u32.wrapping_mul(k as u32 + 1);
+                let noise = move || {
+                    seed ^= seed << 13;
+                    seed ^= seed >> 17;
+                    seed ^= seed << 5;
+                    (seed >> 8) as f32 / (1u32 << 24) as f32 - 0.5
+                };
+                vision_core::observation::project_observation(&v.camera, &v.target, &r_cw, c, 3.0, 2.0, noise)
+            });
+            Self { frames, frame_seq: 0 }
+        }
+    }
 
     /// The pattern painted over the free stack.
     const PAINT: u32 = 0xA5A5_A5A5;
@@ -535,7 +627,7 @@ mod variant {
     impl Board {
         /// Reset clock (HSI), UART, tick; no sensors.
         pub fn init() -> Self {
-            let (Some(dp), Some(cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
+            let (Some(dp), Some(mut cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
                 halt("peripherals already taken")
             };
             let mut rcc = dp.RCC.constrain();
@@ -548,10 +640,11 @@ mod variant {
             ) else {
                 halt("uart")
             };
-            start_uart(serial);
+            start_uart(serial, &mut cp.NVIC);
+            let hw = Hardware::new();
             #[cfg(not(feature = "fil"))]
             {
-                start_tick(cp.SYST, QEMU_CORE_HZ);
+                start_tick(cp.SYST, &mut cp.SCB, QEMU_COUNTS_PER_TICK);
                 cortex_m_semihosting::hprintln!("firmware (qemu variant) started");
             }
             #[cfg(feature = "fil")]
@@ -564,14 +657,29 @@ mod variant {
                 syst.enable_counter();
                 cortex_m_semihosting::hprintln!("firmware (firmware-in-the-loop variant) started");
             }
-            Board {
-                last_tick: TICKS.load(Ordering::Acquire),
-                dwt: false,
-                free_running: cfg!(feature = "fil"),
-                nonces: 0,
-                rng_errors: 0,
-                hw: Hardware,
+            Board { nonces: 0, rng_errors: 0, hw }
+        }
+
+        /// The synthetic forward camera: two frames of the line every 34 ms once the estimator has aligned (as
+        /// if the second camera frame of a pair arrived with the first), captured 30 ms before they arrive, so
+        /// that two pose solves run back to back as background work, over more than one tick, while the ticks
+        /// go on.
+        pub fn synthetic_frames(&mut self, time_us: u64) -> [Option<protocol::VisionMeasurement>; 2] {
+            if cfg!(feature = "fil")
+                || time_us < SYNTHETIC_FRAMES_FROM_US
+                || !time_us.is_multiple_of(SYNTHETIC_FRAME_EVERY_US)
+            {
+                return [None; 2];
             }
+            let hw = &mut self.hw;
+            core::array::from_fn(|k| {
+                hw.frame_seq = hw.frame_seq.wrapping_add(1);
+                Some(protocol::VisionMeasurement {
+                    capture_time_us: time_us - 30_000 + 1000 * k as u64,
+                    frame_seq: hw.frame_seq,
+                    observation: hw.frames[hw.frame_seq as usize % SYNTHETIC_FRAMES],
+                })
+            })
         }
 
         /// QEMU does not model the RNG: a nonce made unique (within a run) by a count and the cycle counter,
@@ -605,20 +713,39 @@ mod variant {
 
         /// Reports the stack's high-water mark and the loop's counts over semihosting and exits.
         pub fn report_and_exit(&mut self, s: &RunStats) -> ! {
-            let _ = self.hw;
+            // The firmware in the loop's background work after each step (cycles); on the board's schedule,
+            // in the scheduling line.
+            #[cfg(feature = "fil")]
+            let background = (s.max_background, s.sum_background);
+            #[cfg(not(feature = "fil"))]
+            let background = (0u32, 0u64);
             let (used, room) = stack_used();
             cortex_m_semihosting::hprintln!("stack: used={} of {} bytes, free={}", used, room, room - used);
+            #[cfg(not(feature = "fil"))]
+            cortex_m_semihosting::hprintln!(
+                "scheduling: tick_latency_max={} tick_latency_mean={} (instructions) ticks_during_solves={} steps_during_solves={} frames={} solves={} solved={} rejected={} frames_dropped={} solve_instructions_max={}",
+                instructions(s.tick_latency_max as u64),
+                instructions(s.tick_latency_sum / s.ticks.max(1) as u64),
+                crate::background::TICKS_DURING_SOLVES.load(Ordering::Relaxed),
+                crate::background::STEPS_DURING_SOLVES.load(Ordering::Relaxed),
+                s.vision.frames,
+                crate::background::SOLVES.load(Ordering::Relaxed),
+                s.vision.solved,
+                s.vision.rejected,
+                s.vision.dropped,
+                instructions(crate::background::SOLVE_CYCLES_MAX.load(Ordering::Relaxed) as u64),
+            );
             cortex_m_semihosting::hprintln!(
                 "loop ran: steps={} ticks={} imu_errors={} motor_errors={} imu_dropped={} step_cycles_max={} step_cycles_mean={} background_cycles_max={} background_cycles_total={} mode={:?} link_ok={} link_errors={} radio=\"{}\" auth_ok={} auth_refused={} arm_refused={} link_cycles_max={} rng_errors={}",
                 s.steps,
-                self.last_tick,
+                TICKS.load(Ordering::Acquire),
                 s.imu_errors,
                 s.motor_errors,
                 s.imu_dropped,
                 s.max_cost,
                 s.sum_cost / s.steps.max(1) as u64,
-                s.max_background,
-                s.sum_background,
+                background.0,
+                background.1,
                 s.mode,
                 s.link.ok,
                 s.link.errors(),

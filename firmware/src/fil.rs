@@ -32,7 +32,7 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
                 }
             }
             Some(Ok(FilToFc::Step(s))) => {
-                let t0 = board.cycles();
+                let t0 = board::cycles();
                 let out = stack.step(&StepInput {
                     time_us: s.time_us,
                     imu: &s.imu,
@@ -41,7 +41,7 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
                     uplink: &uplink,
                     landed: s.landed,
                 });
-                let cost = board.cycles_since(t0);
+                let cost = board::cycles_since(t0);
                 uplink.clear();
                 stats.record_step(cost);
                 stats.mode = out.control.status.mode;
@@ -65,13 +65,13 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
                     },
                 );
                 // Background work, as the board runs it between steps and the simulator after its step.
-                let t1 = board.cycles();
+                let t1 = board::cycles();
                 background_solves = stack.solve_pending().min(u8::MAX as usize) as u8;
-                background_cycles = board.cycles_since(t1);
+                background_cycles = board::cycles_since(t1);
                 stats.record_background(background_cycles);
             }
             Some(Ok(FilToFc::AuthCost)) => {
-                let cost = flight_core::fil::measure_auth_cost(|| board.cycles());
+                let cost = flight_core::fil::measure_auth_cost(board::cycles);
                 link::send_plain(board, &FcToFil::AuthCost(cost));
             }
             Some(Ok(FilToFc::Stop)) => {

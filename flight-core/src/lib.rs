@@ -12,7 +12,9 @@
 //! queues the frame with its capture-time attitude ([`SolveJob`]), [`FlightStack::solve_pending`] solves the
 //! queue as background work (after the step, at lower priority), and the next step fuses the fixes. Every
 //! caller runs them in this order (step, then background work), so that the simulator, replay and the
-//! firmware in the loop compute the same bits; on the board the background work runs between control steps.
+//! firmware in the loop compute the same bits; on the board the background work runs in thread mode, preempted
+//! by the steps (in the tick's exception), taking each job ([`FlightStack::take_job`]) and handing its outcome
+//! back ([`FlightStack::deliver`]).
 //!
 //! Optical-flow measurements of the downward camera arrive as flow statistics of a frame pair
 //! ([`protocol::FlowMeasurement`]); [`flow`] derotates them with the gyro over exactly the frame interval and
@@ -264,9 +266,20 @@ impl FlightStack {
     /// compiler can construct it in place (the firmware keeps it on the main stack: each extra copy of its
     /// tens of kilobytes would cost as much RAM).
     pub fn new(cfg: FlightConfig) -> Result<Self, ParamError> {
-        Self::check(&cfg)?;
-        cfg.control.validate()?;
-        Ok(Self {
+        Self::check_config(&cfg)?;
+        Ok(Self::new_checked(cfg))
+    }
+
+    /// Every check [`FlightStack::new`] makes of a configuration.
+    pub fn check_config(cfg: &FlightConfig) -> Result<(), ParamError> {
+        Self::check(cfg)?;
+        cfg.control.validate()
+    }
+
+    /// A stack for a configuration that passed [`FlightStack::check_config`] (for a caller that checks first and
+    /// then builds in place, as the firmware does into its static; unchecked, the laws' bounds may not hold).
+    pub fn new_checked(cfg: FlightConfig) -> Self {
+        Self {
             control: ControlCore::new_checked(cfg.control),
             vision: cfg.vision,
             counters: VisionCounters::default(),
@@ -279,7 +292,7 @@ impl FlightStack {
             commands: heapless::Deque::new(),
             param_replies: heapless::Deque::new(),
             requests_dropped: 0,
-        })
+        }
     }
 
     /// A parameter answer: this step's, or queued for a later step when this one has its answer.
@@ -347,19 +360,46 @@ impl FlightStack {
 
     /// Background work: solves the queued frames; the next [`FlightStack::step`] fuses them. Returns how many
     /// were solved.
+    ///
+    /// The same as taking each job ([`FlightStack::take_job`]), solving it ([`solve_job`]) and handing the
+    /// outcome back ([`FlightStack::deliver`]), which is how a caller whose steps preempt the background work
+    /// (the board's firmware: the step in an interrupt, the solve in thread mode) runs it.
     pub fn solve_pending(&mut self) -> usize {
         let mut n = 0;
-        while let Some(job) = self.jobs.pop_front() {
+        while let Some(job) = self.take_job() {
             let outcome = solve_job(&job, &self.vision);
-            if self.solved.is_full() {
-                self.solved.remove(0);
-                self.counters.dropped += 1;
-            }
-            // Cannot fail: a place was made above.
-            let _ = self.solved.push((job.measurement.capture_time_us, outcome));
+            self.deliver(job.measurement.capture_time_us, outcome);
             n += 1;
         }
         n
+    }
+
+    /// The oldest frame waiting for its solve, taken off the queue.
+    pub fn take_job(&mut self) -> Option<SolveJob> {
+        self.jobs.pop_front()
+    }
+
+    /// A solved frame (the outcome of [`solve_job`] for a job of [`FlightStack::take_job`] with the frame's
+    /// capture time), fused by the next step. When more than [`SOLVE_QUEUE`] wait, the oldest is dropped and
+    /// counted (`VisionCounters::dropped`).
+    pub fn deliver(&mut self, capture_time_us: u64, outcome: FrameOutcome) {
+        if self.solved.is_full() {
+            self.solved.remove(0);
+            self.counters.dropped += 1;
+        }
+        // Cannot fail: a place was made above.
+        let _ = self.solved.push((capture_time_us, outcome));
+    }
+
+    /// Counts a frame given up by a caller's own queue between [`FlightStack::take_job`] and
+    /// [`FlightStack::deliver`] (the background work fell behind), as the stack's queues count theirs.
+    pub fn count_dropped_frame(&mut self) {
+        self.counters.dropped += 1;
+    }
+
+    /// What the pose solve of the background work needs ([`solve_job`]).
+    pub fn vision_config(&self) -> &VisionConfig {
+        &self.vision
     }
 
     fn count(&mut self, outcome: &FrameOutcome) {
@@ -751,6 +791,57 @@ mod tests {
             landed: None,
         });
         assert_eq!(out.vision.solved, 3);
+    }
+
+    #[test]
+    fn background_work_taken_job_by_job_is_solve_pending() {
+        // Two stacks fed the same steps and frames: one runs `solve_pending`, the other takes each job, solves
+        // it apart and delivers it, as the firmware's thread mode does; every step's output is the same.
+        let mut a = FlightStack::new(FlightConfig::paper()).unwrap();
+        let mut b = a.clone();
+        let mut t = 0;
+        for k in 0..400u32 {
+            t += 2000;
+            let frames: heapless::Vec<Uplink, 2> = if k > 100 && k % 15 == 0 {
+                heapless::Vec::from_slice(&[Uplink::Vision(frame_seen(t - 30_000, k))]).unwrap()
+            } else {
+                heapless::Vec::new()
+            };
+            let inp = StepInput {
+                time_us: t,
+                imu: &imu(t),
+                mag: None,
+                baro_m: None,
+                uplink: &frames,
+                landed: None,
+            };
+            assert_eq!(a.step(&inp), b.step(&inp), "step {k}");
+            let n = a.solve_pending();
+            let mut m = 0;
+            while let Some(job) = b.take_job() {
+                let outcome = solve_job(&job, b.vision_config());
+                b.deliver(job.measurement.capture_time_us, outcome);
+                m += 1;
+            }
+            assert_eq!(n, m);
+        }
+        assert!(
+            a.step(&StepInput {
+                time_us: t + 2000,
+                imu: &imu(t + 2000),
+                mag: None,
+                baro_m: None,
+                uplink: &[],
+                landed: None
+            })
+            .vision
+            .solved
+                > 10
+        );
+        // A caller's own queue that gave a frame up counts it as the stack's do.
+        let before = b.counters.dropped;
+        b.count_dropped_frame();
+        assert_eq!(b.counters.dropped, before + 1);
     }
 
     #[test]
