@@ -277,23 +277,6 @@ impl Board {
         cortex_m::interrupt::free(|cs| RX_QUEUE.borrow(cs).borrow_mut().pop_front())
     }
 
-    /// One byte from the radio; when none has arrived, sleeps until an interrupt and returns `None`.
-    ///
-    /// The check and the `wfi` are one critical section: a byte whose interrupt comes between them leaves the
-    /// interrupt pending, which ends the `wfi` (it wakes on pending interrupts even while they are masked).
-    /// Checking outside and then sleeping would miss it and, with nothing else to wake the core (the loop of
-    /// the firmware in the loop has no tick), wait forever for a byte already queued.
-    #[cfg(feature = "fil")]
-    pub fn rx_byte_or_sleep(&mut self) -> Option<u8> {
-        cortex_m::interrupt::free(|cs| {
-            let b = RX_QUEUE.borrow(cs).borrow_mut().pop_front();
-            if b.is_none() {
-                cortex_m::asm::wfi();
-            }
-            b
-        })
-    }
-
     /// Free space in the radio's transmit queue (bytes).
     pub fn tx_free(&self) -> usize {
         cortex_m::interrupt::free(|cs| {

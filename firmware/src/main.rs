@@ -30,6 +30,8 @@ mod board;
 mod control;
 #[cfg(feature = "fil")]
 mod fil;
+#[cfg(feature = "fil")]
+mod fil_io;
 mod link;
 mod panic;
 #[cfg(not(feature = "fil"))]

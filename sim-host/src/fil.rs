@@ -1,18 +1,21 @@
 //! Firmware in the loop: the flight firmware's ELF runs in QEMU's STM32F405 model (`netduinoplus2`) and flies
-//! the simulated vehicle, in lockstep over its emulated radio UART (`flight_core::fil`).
+//! the simulated vehicle, in lockstep (`flight_core::fil`).
 //!
-//! QEMU connects the firmware's USART1 to a TCP socket that this process listens on (loopback only). Each
-//! control period the simulator sends the radio messages that arrived and the period's sensors; the firmware
-//! steps and answers with its radio messages and the step's report. QEMU runs with `-icount shift=0`: every
-//! guest instruction takes one nanosecond of virtual time, so the firmware's SysTick (168 MHz) counts 0.168 per
-//! instruction and each step's cost is reproducible. QEMU is killed when the run ends, fails or is dropped.
+//! The wire is two named pipes in a directory of this run, `fil-to-fc` and `fil-from-fc`, which the firmware
+//! reads and writes through QEMU's semihosting, a block per call (the firmware's `fil_io.rs`; QEMU's UART model
+//! moves one byte per turn of its main loop, which held the lockstep to 0.1-0.35 of real time). Each control
+//! period the simulator sends the radio messages that arrived and the period's sensors; the firmware steps and
+//! answers with its radio messages and the step's report. QEMU runs with `-icount shift=0`: every guest
+//! instruction takes one nanosecond of virtual time, so the firmware's SysTick (168 MHz) counts 0.168 per
+//! instruction and each step's cost is reproducible (the host's work between the calls costs the guest
+//! nothing). QEMU is killed, and the directory removed, when the run ends, fails or is dropped.
 use anyhow::{Context, Result, bail};
 use flight_core::StepReport;
 use flight_core::fil::{FcToFil, FilToFc, MAX_IMU_PER_STEP, SensorStep};
 use protocol::Downlink;
 use protocol::frame::{Decoder, MAX_FRAME, WIRE_VERSION, encode};
+use std::fs::File;
 use std::io::{Read, Write};
-use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
@@ -120,10 +123,20 @@ impl Console {
     }
 }
 
+/// The pipe the firmware reads, and the one it writes, in QEMU's working directory.
+pub const PIPE_TO_FC: &str = "fil-to-fc";
+/// See [`PIPE_TO_FC`].
+pub const PIPE_FROM_FC: &str = "fil-from-fc";
+
 /// The firmware running in QEMU.
 pub struct QemuFc {
     child: Child,
-    stream: TcpStream,
+    /// This run's directory: the pipes, QEMU's working directory.
+    dir: PathBuf,
+    /// The pipes, opened for reading and writing so that neither end's open blocks and a firmware that has
+    /// not opened its end yet loses nothing.
+    to_fc: File,
+    from_fc: File,
     decoder: Decoder,
     /// Bytes read from the UART and not yet decoded (`rx[rx_pos..rx_len]`).
     rx: Box<[u8; 4096]>,
@@ -139,6 +152,39 @@ impl Drop for QemuFc {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// A fresh directory with the two pipes, and both opened.
+fn make_pipes() -> Result<(PathBuf, File, File)> {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    static RUNS: AtomicU32 = AtomicU32::new(0);
+    let dir = std::env::temp_dir().join(format!(
+        "wlq-fil-{}-{}",
+        std::process::id(),
+        RUNS.fetch_add(1, Ordering::Relaxed)
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    let open = |name: &str| -> Result<File> {
+        let path = dir.join(name);
+        rustix::fs::mkfifoat(rustix::fs::CWD, &path, rustix::fs::Mode::from_raw_mode(0o600))
+            .with_context(|| format!("making the pipe {}", path.display()))?;
+        std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&path)
+            .with_context(|| format!("opening the pipe {}", path.display()))
+    };
+    let to_fc = open(PIPE_TO_FC);
+    let from_fc = open(PIPE_FROM_FC);
+    match (to_fc, from_fc) {
+        (Ok(a), Ok(b)) => Ok((dir, a, b)),
+        (Err(e), _) | (_, Err(e)) => {
+            let _ = std::fs::remove_dir_all(&dir);
+            Err(e)
+        }
     }
 }
 
@@ -160,26 +206,31 @@ impl QemuFc {
     /// Starts QEMU with the ELF and waits for the firmware's hello.
     pub fn start(opts: &QemuOptions) -> Result<Self> {
         check_elf(&opts.elf)?;
-        let listener =
-            TcpListener::bind("127.0.0.1:0").context("cannot listen on loopback for QEMU's UART")?;
-        let port = listener.local_addr()?.port();
+        // QEMU runs in the pipes' directory, so the ELF's path must not be relative to ours.
+        let elf = std::fs::canonicalize(&opts.elf)
+            .with_context(|| format!("firmware ELF {}", opts.elf.display()))?;
+        let (dir, to_fc, from_fc) = make_pipes()?;
         let mut cmd = Command::new(QEMU);
-        cmd.args(["-machine", "netduinoplus2", "-nographic", "-monitor", "none"])
-            .args(["-semihosting-config", "enable=on,target=native", "-icount", "shift=0"])
-            .args(["-chardev", &format!("socket,id=link,host=127.0.0.1,port={port},nodelay=on")])
-            .args(["-serial", "chardev:link", "-kernel"])
-            .arg(&opts.elf)
+        cmd.current_dir(&dir)
+            .args(["-machine", "netduinoplus2", "-nographic", "-monitor", "none", "-serial", "null"])
+            .args(["-semihosting-config", "enable=on,target=native", "-icount", "shift=0", "-kernel"])
+            .arg(&elf)
             .args(opts.extra_args.iter())
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
         let mut child = match cmd.spawn() {
             Ok(c) => c,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!(
-                "{QEMU} not found: install QEMU's ARM system emulator (Debian and Ubuntu: \
-                 `apt-get install qemu-system-arm`)"
-            ),
-            Err(e) => return Err(e).context(format!("cannot start {QEMU}")),
+            Err(e) => {
+                let _ = std::fs::remove_dir_all(&dir);
+                if e.kind() == std::io::ErrorKind::NotFound {
+                    bail!(
+                        "{QEMU} not found: install QEMU's ARM system emulator (Debian and Ubuntu: \
+                         `apt-get install qemu-system-arm`)"
+                    );
+                }
+                return Err(e).context(format!("cannot start {QEMU}"));
+            }
         };
         let console = Console::default();
         if let Some(o) = child.stdout.take() {
@@ -188,38 +239,12 @@ impl QemuFc {
         if let Some(e) = child.stderr.take() {
             console.follow(e);
         }
-        // From here on, `fc` owns the child: any error kills QEMU on drop.
-        listener.set_nonblocking(true)?;
-        let deadline = Instant::now() + opts.boot_timeout;
-        let stream = loop {
-            match listener.accept() {
-                Ok((s, _)) => break s,
-                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
-                Err(e) => {
-                    let _ = child.kill();
-                    let _ = child.wait();
-                    return Err(e).context("accepting QEMU's UART connection");
-                }
-            }
-            if let Ok(Some(status)) = child.try_wait() {
-                bail!("QEMU exited ({status}) before connecting its UART; it printed: {}", console.tail());
-            }
-            if Instant::now() > deadline {
-                let _ = child.kill();
-                let _ = child.wait();
-                bail!(
-                    "QEMU did not connect its UART within {:?}; it printed: {}",
-                    opts.boot_timeout,
-                    console.tail()
-                );
-            }
-            std::thread::sleep(Duration::from_millis(5));
-        };
-        stream.set_nonblocking(false)?;
-        stream.set_nodelay(true)?;
+        // From here on, `fc` owns the child and the directory: any error kills QEMU and removes them on drop.
         let mut fc = Self {
             child,
-            stream,
+            dir,
+            to_fc,
+            from_fc,
             decoder: Decoder::new(),
             rx: Box::new([0; 4096]),
             rx_pos: 0,
@@ -243,7 +268,7 @@ impl QemuFc {
     fn send(&mut self, msg: &FilToFc) -> Result<()> {
         let mut buf = [0u8; MAX_FRAME];
         let frame = encode(msg, &mut buf).map_err(|e| anyhow::anyhow!("cannot frame {msg:?}: {e:?}"))?;
-        self.stream.write_all(frame).with_context(|| self.lost("writing to the firmware's UART"))
+        self.to_fc.write_all(frame).with_context(|| self.lost("writing to the firmware's pipe"))
     }
 
     fn lost(&mut self, what: &str) -> String {
@@ -277,17 +302,34 @@ impl QemuFc {
                 let msg = self.lost(&format!("the firmware did not answer ({what}) within {timeout:?}"));
                 bail!(msg);
             }
-            self.stream.set_read_timeout(Some(left.max(Duration::from_millis(1))))?;
-            match self.stream.read(&mut self.rx[..]) {
+            // Wait for bytes at most 0.1 s at a time, so that a QEMU that exited is noticed (this process holds
+            // both ends of the pipe, so its read would never see an end of file).
+            let slice = left.min(Duration::from_millis(100));
+            let ts = rustix::event::Timespec {
+                tv_sec: slice.as_secs() as i64,
+                tv_nsec: slice.subsec_nanos() as i64,
+            };
+            let mut fds = [rustix::event::PollFd::new(&self.from_fc, rustix::event::PollFlags::IN)];
+            match rustix::event::poll(&mut fds, Some(&ts)) {
                 Ok(0) => {
-                    let msg = self.lost("the firmware's UART closed");
+                    if let Ok(Some(_)) = self.child.try_wait() {
+                        let msg = self.lost("the firmware stopped answering");
+                        bail!(msg);
+                    }
+                    continue;
+                }
+                Ok(_) => {}
+                Err(rustix::io::Errno::INTR) => continue,
+                Err(e) => {
+                    let msg = self.lost(&format!("waiting for the firmware's pipe failed ({e})"));
                     bail!(msg);
                 }
+            }
+            match self.from_fc.read(&mut self.rx[..]) {
                 Ok(n) => (self.rx_pos, self.rx_len) = (0, n),
-                Err(e)
-                    if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                 Err(e) => {
-                    let msg = self.lost(&format!("reading the firmware's UART failed ({e})"));
+                    let msg = self.lost(&format!("reading the firmware's pipe failed ({e})"));
                     bail!(msg);
                 }
             }
@@ -315,7 +357,7 @@ impl QemuFc {
             let frame = encode(&msg, &mut buf).map_err(|e| anyhow::anyhow!("cannot frame {msg:?}: {e:?}"))?;
             out.extend_from_slice(frame);
         }
-        self.stream.write_all(&out).with_context(|| self.lost("writing to the firmware's UART"))?;
+        self.to_fc.write_all(&out).with_context(|| self.lost("writing to the firmware's pipe"))?;
         let mut downlink = Vec::new();
         let timeout = self.opts.step_timeout;
         loop {

@@ -10,6 +10,9 @@ use sim_host::sil::{CameraMode, FcChoice, Sil};
 use std::path::PathBuf;
 use system_tests::{check_flight, check_partial_flight};
 
+/// The tests that start QEMU run one at a time (one checks that its run leaves no pipe directory behind).
+static QEMU_RUNS: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 fn elf() -> PathBuf {
     match std::env::var_os("FIL_ELF") {
         Some(p) => PathBuf::from(p),
@@ -39,13 +42,12 @@ fn available() -> bool {
     }
 }
 
-/// How long to fly: `FIL_SECONDS` (seconds, or `full` for the whole paper flight); 25 s by default (take-off,
-/// hover and the first sweep).
+/// How long to fly: `FIL_SECONDS` (seconds, or `full`); the whole paper flight by default (since the firmware
+/// in the loop talks over semihosting pipes it runs several times faster than real time).
 fn seconds(scenario: &Scenario) -> (f64, bool) {
     match std::env::var("FIL_SECONDS").ok().as_deref() {
-        Some("full") => (scenario.mission.max_duration_s, true),
+        Some("full") | None => (scenario.mission.max_duration_s, true),
         Some(v) => (v.parse().expect("FIL_SECONDS: seconds or `full`"), false),
-        None => (25.0, false),
     }
 }
 
@@ -54,6 +56,7 @@ fn firmware_in_qemu_flies_like_the_simulator_bit_for_bit() {
     if !available() {
         return;
     }
+    let _one = QEMU_RUNS.lock().unwrap_or_else(|e| e.into_inner());
     let scenario = Scenario::paper();
     let (seconds, full) = seconds(&scenario);
     let fly = |fc: &FcChoice| {
@@ -63,14 +66,17 @@ fn firmware_in_qemu_flies_like_the_simulator_bit_for_bit() {
         (st, sil.motor_commands().unwrap().to_vec())
     };
     let (host, host_cmds) = fly(&FcChoice::Sil);
+    let t0 = std::time::Instant::now();
     let (fw, fw_cmds) = fly(&FcChoice::Qemu(QemuOptions::new(elf())));
+    let wall = t0.elapsed().as_secs_f64();
     assert!(fw.fc_error.is_none(), "{:?}", fw.fc_error);
     let cost = fw.fc_cost.clone().expect("the firmware's step costs");
     eprintln!(
-        "{} control steps over {:.1} s; firmware step mean {:.0} instructions, max {} at {:.2} s; {} pose solves, \
-         mean {:.0} instructions, {:.1} % of the core; {}",
+        "{} control steps over {:.1} s in {wall:.1} s of wall time ({:.1}x real time); firmware step mean {:.0} \
+         instructions, max {} at {:.2} s; {} pose solves, mean {:.0} instructions, {:.1} % of the core; {}",
         fw_cmds.len(),
         fw.sim_time_s,
+        fw.sim_time_s / wall,
         cost.mean_instructions,
         cost.max_instructions,
         cost.max_at_s,
@@ -113,6 +119,7 @@ fn the_keyed_link_costs_per_frame_in_qemu() {
     if !available() {
         return;
     }
+    let _one = QEMU_RUNS.lock().unwrap_or_else(|e| e.into_inner());
     let mut fc = sim_host::fil::QemuFc::start(&QemuOptions::new(elf())).unwrap();
     let c = fc.auth_cost().unwrap();
     fc.finish().unwrap();
@@ -142,4 +149,35 @@ fn the_keyed_link_costs_per_frame_in_qemu() {
     // (docs/security.md).
     let worst_period = c.open[0] + c.open[1] + c.seal[0];
     assert!(worst_period < STEP_BUDGET_INSTRUCTIONS, "{worst_period} instructions in one period");
+}
+
+/// A firmware that never answers on the pipes (the `qemu` variant, which runs its own loop and exits) stops the
+/// run with an error quoting QEMU's output, and the run's directory with its pipes is removed.
+#[test]
+fn a_firmware_that_does_not_speak_the_lockstep_is_an_error_and_leaves_nothing() {
+    if !available() {
+        return;
+    }
+    let _one = QEMU_RUNS.lock().unwrap_or_else(|e| e.into_inner());
+    let qemu_elf = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../firmware/target/qemu/thumbv7em-none-eabihf/release/firmware");
+    if !qemu_elf.exists() {
+        assert!(std::env::var("REQUIRE_QEMU").is_err(), "REQUIRE_QEMU=1 but no {}", qemu_elf.display());
+        eprintln!("skipped: no {} (build it with --features qemu)", qemu_elf.display());
+        return;
+    }
+    let pipes = || -> Vec<_> {
+        std::fs::read_dir(std::env::temp_dir())
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with(&format!("wlq-fil-{}-", std::process::id())))
+            .collect()
+    };
+    let err = match sim_host::fil::QemuFc::start(&QemuOptions::new(&qemu_elf)) {
+        Ok(_) => panic!("the qemu variant answered the lockstep"),
+        Err(e) => format!("{e:#}"),
+    };
+    assert!(err.contains("the firmware stopped answering") && err.contains("qemu variant"), "{err}");
+    assert_eq!(pipes(), Vec::<String>::new(), "the run's directory is removed");
 }
