@@ -21,6 +21,22 @@ static SOLVED: Mutex<RefCell<Deque<(u64, FrameOutcome), SOLVE_QUEUE>>> =
     Mutex::new(RefCell::new(Deque::new()));
 /// Frames given up in these two queues since the last step (counted into the flight stack's counters there).
 static DROPPED: AtomicU32 = AtomicU32::new(0);
+/// The pose solve's configuration (the flight stack's, copied at start and when an upload replaces it), and
+/// how many times it was set (a solve begun under an earlier one is not handed to the new stack).
+static VISION: Mutex<RefCell<Option<(VisionConfig, u32)>>> = Mutex::new(RefCell::new(None));
+
+/// Sets the configuration the solves use, and gives up the frames waiting or solved under the one before
+/// (their attitudes and the estimator they belong to are gone with the stack they came from).
+pub fn set_vision(vision: VisionConfig) {
+    cortex_m::interrupt::free(|cs| {
+        let mut v = VISION.borrow(cs).borrow_mut();
+        let epoch = v.map_or(0, |(_, e)| e.wrapping_add(1));
+        *v = Some((vision, epoch));
+        JOBS.borrow(cs).borrow_mut().clear();
+        SOLVED.borrow(cs).borrow_mut().clear();
+    });
+    DROPPED.store(0, Ordering::Relaxed);
+}
 
 /// Frames solved.
 pub static SOLVES: AtomicU32 = AtomicU32::new(0);
@@ -71,24 +87,29 @@ pub fn deliver_solved(stack: &mut FlightStack) {
 }
 
 /// Thread mode: solves the frames as they come, sleeping while there are none. Never returns.
-pub fn run(vision: VisionConfig) -> ! {
+pub fn run() -> ! {
     loop {
-        // Take a job, or sleep until an interrupt: the check and the `wfi` in one critical section, so that a
-        // job handed over between them leaves its SysTick pending, which ends the `wfi`.
-        let job = cortex_m::interrupt::free(|cs| {
-            let job = JOBS.borrow(cs).borrow_mut().pop_front();
+        // Take a job (with the configuration to solve it with), or sleep until an interrupt: the check and the
+        // `wfi` in one critical section, so that a job handed over between them leaves its SysTick pending,
+        // which ends the `wfi`.
+        let work = cortex_m::interrupt::free(|cs| {
+            let vision = *VISION.borrow(cs).borrow();
+            let job = vision.and_then(|_| JOBS.borrow(cs).borrow_mut().pop_front());
             if job.is_none() {
                 cortex_m::asm::wfi();
             }
-            job
+            job.zip(vision)
         });
-        let Some(job) = job else { continue };
+        let Some((job, (vision, epoch))) = work else { continue };
         let t0 = board::cycles();
         SOLVING.store(true, Ordering::Release);
         let outcome = flight_core::solve_job(&job, &vision);
         SOLVING.store(false, Ordering::Release);
         let cycles = board::cycles_since(t0);
         cortex_m::interrupt::free(|cs| {
+            if VISION.borrow(cs).borrow().is_none_or(|(_, e)| e != epoch) {
+                return;
+            }
             let mut q = SOLVED.borrow(cs).borrow_mut();
             if q.is_full() {
                 q.pop_front();

@@ -251,6 +251,8 @@ pub fn halt(why: &'static str) -> ! {
 
 /// The board.
 pub struct Board {
+    /// The flash for the parameter store, until `main` takes it ([`Board::take_flash`]).
+    flash: Option<crate::config::Flash>,
     /// Handshake nonces drawn.
     nonces: u32,
     /// Nonces the hardware RNG could not give.
@@ -259,6 +261,14 @@ pub struct Board {
 }
 
 impl Board {
+    /// The flash for the parameter store (once; the store owns it from then on).
+    pub fn take_flash(&mut self) -> crate::config::Flash {
+        match self.flash.take() {
+            Some(f) => f,
+            None => halt("the flash was taken twice"),
+        }
+    }
+
     /// A nonce unique within this run: SHA-256 of the count of nonces drawn, the cycle counter and the tick.
     fn fallback_nonce(&self) -> Nonce {
         use sha2::Digest;
@@ -409,7 +419,13 @@ mod variant {
             cp.DCB.enable_trace();
             cp.DWT.enable_cycle_counter();
             start_tick(cp.SYST, &mut cp.SCB, rcc.clocks.sysclk().raw() / 1000);
-            Board { nonces: 0, rng_errors: 0, hw: Hardware { imu, mag, esc, rng: dp.RNG } }
+            let flash = crate::config::Flash(stm32f4xx_hal::flash::LockedFlash::new(dp.FLASH));
+            Board {
+                flash: Some(flash),
+                nonces: 0,
+                rng_errors: 0,
+                hw: Hardware { imu, mag, esc, rng: dp.RNG },
+            }
         }
 
         /// No synthetic frames on the board: its frames come over the radio.
@@ -640,7 +656,7 @@ mod variant {
                 syst.enable_counter();
                 cortex_m_semihosting::hprintln!("firmware (firmware-in-the-loop variant) started");
             }
-            Board { nonces: 0, rng_errors: 0, hw }
+            Board { flash: Some(crate::config::Flash::new()), nonces: 0, rng_errors: 0, hw }
         }
 
         /// The synthetic forward camera: two frames of the line every 34 ms once the estimator has aligned (as

@@ -11,13 +11,15 @@ use crate::board::{self, Board, RunStats};
 use crate::link;
 use control_core::estimator::ImuSample;
 use drivers::blctrl::command_for_speed;
+use flight_core::config_upload::ConfigUpload;
+use flight_core::param_store::ParamStore;
 use flight_core::radio::{Incoming, Security, VehicleRadio};
 use flight_core::telemetry::DownlinkSchedule;
 use flight_core::{FlightConfig, FlightStack, StepInput};
 use geometry::Vec3;
 use heapless::Vec;
-use protocol::Uplink;
 use protocol::frame::MAX_FRAME;
+use protocol::{Downlink, Uplink};
 
 /// Control period in ticks (500 Hz).
 pub const STEP_EVERY: u32 = 2;
@@ -34,11 +36,19 @@ pub struct Flight {
     downlinks: DownlinkSchedule,
     motor_max: f32,
     stats: RunStats,
+    /// A configuration upload being put together, and the flash store it goes to.
+    upload: ConfigUpload,
+    store: Option<ParamStore<crate::config::Flash>>,
 }
 
 impl Flight {
     /// The loop's state around a flight stack built from `cfg`.
-    pub fn new(stack: &'static mut FlightStack, cfg: &FlightConfig, security: Security) -> Self {
+    pub fn new(
+        stack: &'static mut FlightStack,
+        cfg: &FlightConfig,
+        security: Security,
+        store: Option<ParamStore<crate::config::Flash>>,
+    ) -> Self {
         Self {
             stack,
             radio: VehicleRadio::new(security),
@@ -48,6 +58,8 @@ impl Flight {
             downlinks: DownlinkSchedule::new(),
             motor_max: cfg.control.vehicle.motor_speed_max_rad_s,
             stats: RunStats::default(),
+            upload: ConfigUpload::new(),
+            store,
         }
     }
 
@@ -84,6 +96,21 @@ impl Flight {
         let t_link = board::cycles();
         while let Some(byte) = board.rx_byte() {
             match self.radio.push(byte, time_us, armed, || board.nonce(), &mut self.reply) {
+                // A configuration upload's piece: put together here, applied and stored when whole
+                // (docs/firmware.md, "Parameters in flash"); the flight stack never sees it.
+                Some(Incoming::Message(Uplink::Config(c))) => {
+                    let motor_max = &mut self.motor_max;
+                    let ack =
+                        crate::config::take_piece(&mut self.upload, &c, self.stack, &mut self.store, |cfg| {
+                            *motor_max = cfg.control.vehicle.motor_speed_max_rad_s;
+                            background::set_vision(cfg.vision);
+                        });
+                    if let Some(ack) = ack
+                        && !link::send(board, &mut self.radio, &Downlink::ConfigAck(ack))
+                    {
+                        stats.downlink_dropped += 1;
+                    }
+                }
                 Some(Incoming::Message(msg)) => {
                     if uplink.push(msg).is_err() {
                         stats.uplink_dropped += 1;

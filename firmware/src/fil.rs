@@ -10,11 +10,13 @@
 //! QEMU's instruction counting their costs are exact.
 use crate::board::{self, Board};
 use crate::fil_io::FilIo;
+use flight_core::config_upload::ConfigUpload;
 use flight_core::fil::{FcToFil, FilToFc};
+use flight_core::param_store::ParamStore;
 use flight_core::{FlightStack, StepInput};
 use heapless::Vec;
-use protocol::Uplink;
 use protocol::frame::{Decoder, MAX_FRAME, WIRE_VERSION, encode};
+use protocol::{Downlink, Uplink};
 
 /// Frames `msg` and writes it to the simulator; a message that cannot be framed is counted.
 fn send(io: &mut FilIo, msg: &FcToFil, stats: &mut board::RunStats) {
@@ -26,7 +28,11 @@ fn send(io: &mut FilIo, msg: &FcToFil, stats: &mut board::RunStats) {
 }
 
 /// Serves steps until the simulator says stop.
-pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
+pub fn run(
+    board: &mut Board,
+    stack: &mut FlightStack,
+    mut store: Option<ParamStore<crate::config::Flash>>,
+) -> ! {
     let Some(mut io) = FilIo::open() else {
         board::halt("no simulator: the firmware in the loop reads the pipes fil-to-fc and fil-from-fc")
     };
@@ -36,6 +42,7 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
     let mut stats = board::RunStats::default();
     let (mut background_cycles, mut background_solves) = (0u32, 0u8);
     let mut rx = [0u8; 512];
+    let mut upload = ConfigUpload::new();
     send(&mut io, &FcToFil::Hello { wire_version: WIRE_VERSION }, &mut stats);
     loop {
         let n = io.read(&mut rx);
@@ -44,6 +51,13 @@ pub fn run(board: &mut Board, stack: &mut FlightStack) -> ! {
         }
         for &byte in &rx[..n] {
             match decoder.push::<FilToFc>(byte) {
+                // A configuration upload (the simulator sends the scenario's before the first step): put
+                // together, applied and stored when whole, and answered at once, as the board does.
+                Some(Ok(FilToFc::Link(Uplink::Config(c)))) => {
+                    if let Some(ack) = crate::config::take_piece(&mut upload, &c, stack, &mut store, |_| {}) {
+                        send(&mut io, &FcToFil::Link(Downlink::ConfigAck(ack)), &mut stats);
+                    }
+                }
                 Some(Ok(FilToFc::Link(m))) => {
                     if uplink.push(m).is_err() {
                         stats.uplink_dropped += 1;

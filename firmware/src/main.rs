@@ -26,6 +26,7 @@
 #[cfg(not(feature = "fil"))]
 mod background;
 mod board;
+mod config;
 #[cfg(not(feature = "fil"))]
 mod control;
 #[cfg(feature = "fil")]
@@ -51,21 +52,28 @@ fn main() -> ! {
     board::paint_stack();
     #[cfg_attr(not(feature = "fil"), allow(unused_mut))]
     let mut board = board::Board::init();
-    let cfg = FlightConfig::paper();
+    // The stored configuration, or the built-in one (docs/firmware.md, "Parameters in flash").
+    let mut store = config::store(board.take_flash());
+    let (mut cfg, report) = config::at_boot(&mut store);
+    defmt::info!("flight configuration: {} ({})", config::describe(&report), report);
     // Checked first, so that the stack is built in its static place by one infallible constructor.
     if let Err(e) = FlightStack::check_config(&cfg) {
-        defmt::error!("invalid flight parameters: {} ({})", e.field, e.problem);
-        board::halt("invalid flight parameters")
+        // The store checks what it loads; the built-in configuration is checked by the tests.
+        defmt::error!("invalid flight configuration: {} ({}); the built-in one instead", e.field, e.problem);
+        cfg = FlightConfig::paper();
+        if FlightStack::check_config(&cfg).is_err() {
+            board::halt("invalid flight parameters")
+        }
     }
     let stack = STACK.init_with(|| FlightStack::new_checked(cfg));
     #[cfg(feature = "fil")]
-    fil::run(&mut board, stack);
+    fil::run(&mut board, stack, store);
     #[cfg(not(feature = "fil"))]
     {
-        let vision = *stack.vision_config();
-        let flight = control::Flight::new(stack, &cfg, radio_security());
+        background::set_vision(*stack.vision_config());
+        let flight = control::Flight::new(stack, &cfg, radio_security(), store);
         sched::start(sched::Control { board, flight });
-        background::run(vision)
+        background::run()
     }
 }
 

@@ -23,7 +23,7 @@ use vision_core::flow::NoFlowReason;
 pub const GYRO_HISTORY_LEN: usize = 128;
 
 /// How the flight code uses the downward camera.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FlowConfig {
     /// Where the camera sits on the vehicle.

@@ -28,6 +28,7 @@
 // `!(x > 0.0)` deliberately rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod config_upload;
 pub mod fil;
 pub mod flow;
 pub mod param_store;
@@ -45,7 +46,7 @@ use vision_core::{
 };
 
 /// What the on-board pose solve needs to know about the forward camera and the line.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct VisionConfig {
     /// Intrinsics of the forward camera.
@@ -74,7 +75,7 @@ impl Default for VisionConfig {
 }
 
 /// Everything the flight stack needs.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FlightConfig {
     /// Control, estimation, mission, failsafes.
@@ -303,7 +304,8 @@ impl FlightStack {
         }
     }
 
-    /// Commands and parameter requests lost because more than [`REQUEST_QUEUE`] of a kind waited.
+    /// Commands and parameter requests lost because more than [`REQUEST_QUEUE`] of a kind waited, and pieces of
+    /// a configuration upload that reached the stack instead of its caller's [`config_upload::ConfigUpload`].
     pub fn link_requests_dropped(&self) -> u32 {
         self.requests_dropped
     }
@@ -511,6 +513,9 @@ impl FlightStack {
                     self.reply(r, &mut param_reply);
                 }
                 Uplink::TimeSync { station_time_us } => time_sync = Some(*station_time_us),
+                // A configuration upload is put together and applied by the caller, which owns the stack
+                // ([`config_upload`]); one that reaches the stack is counted as lost.
+                Uplink::Config(_) => self.requests_dropped += 1,
                 // Handled above.
                 Uplink::Vision(_) | Uplink::PackedVision(_) | Uplink::Flow(_) | Uplink::PackedFlow(_) => {}
             }

@@ -1,5 +1,6 @@
-//! The flight parameters kept in flash across power cycles, in two slots so that a power cut while a set is
-//! written loses nothing: the old set stays valid until the new one is whole.
+//! The flight configuration (the flight parameters, the forward camera and the line, the use of the flow:
+//! [`FlightConfig`]) kept in flash across power cycles, in two slots so that a power cut while a set is written
+//! loses nothing: the old set stays valid until the new one is whole.
 //!
 //! A slot is one or more erase sectors. It holds a header and the set's postcard bytes:
 //!
@@ -8,7 +9,7 @@
 //! | 0-3 | magic `WLQP` |
 //! | 4-5 | store format, little-endian ([`STORE_FORMAT`]) |
 //! | 6-7 | body length |
-//! | 8-15 | the schema key of [`FlightParams`] (postcard-schema's key of the type: a set of another layout is never read as this one) |
+//! | 8-15 | the schema key of [`FlightConfig`] (postcard-schema's key of the type: a set of another layout is never read as this one) |
 //! | 16-19 | sequence number (the newest set has the highest) |
 //! | 20-23 | CRC-32 (ISO-HDLC) over bytes 0-19 and the body |
 //! | 24-27 | commit word `0x434F4D54`, written last |
@@ -16,17 +17,17 @@
 //!
 //! Saving erases the slot that does not hold the newest valid set, writes the header without its commit word
 //! and the body, then the commit word. A slot counts only with its magic, format, schema key, CRC and commit
-//! word right, a body that decodes and a set that passes [`FlightParams::validate`]; loading takes the valid slot
-//! with the highest sequence. A cut during the erase or the writes leaves that slot invalid and the other one as
+//! word right, a body that decodes and a set that passes every check of a flight stack's configuration
+//! ([`FlightStack::check_config`]); loading takes the valid slot with the highest sequence. A cut during the erase or the writes leaves that slot invalid and the other one as
 //! it was. The flash is behind `embedded-storage`'s `NorFlash` (the HAL's flash on the board, a simulated one in
 //! the tests); the algorithms never read a clock.
-use control_core::params::FlightParams;
+use crate::{FlightConfig, FlightStack};
 use embedded_storage::nor_flash::NorFlash;
 
 /// The slot's magic.
 pub const MAGIC: [u8; 4] = *b"WLQP";
-/// The store's layout version.
-pub const STORE_FORMAT: u16 = 1;
+/// The store's layout version (1 held the flight parameters alone; 2 the whole flight configuration).
+pub const STORE_FORMAT: u16 = 2;
 /// The commit word, written after everything else.
 pub const COMMIT: u32 = 0x434F_4D54;
 /// Header bytes before the body.
@@ -35,7 +36,7 @@ pub const HEADER_LEN: usize = 28;
 pub const MAX_BODY: usize = 1024;
 /// The schema key of the stored type.
 pub const SCHEMA_KEY: [u8; 8] =
-    postcard_schema::key::Key::for_path::<FlightParams>("wlq/flight-params").to_bytes();
+    postcard_schema::key::Key::for_path::<FlightConfig>("wlq/flight-config").to_bytes();
 
 const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
@@ -57,7 +58,7 @@ pub enum SlotProblem {
     NotCommitted,
     /// The body does not decode as a set.
     Decode,
-    /// The set is not a valid one ([`FlightParams::validate`]).
+    /// The set is not a valid one ([`FlightStack::check_config`]).
     Invalid,
     /// The flash could not be read.
     Read,
@@ -82,7 +83,7 @@ pub enum StoreError {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LoadReport {
-    /// The slot the set came from (`None`: neither held a valid set, the defaults are used).
+    /// The slot the set came from (`None`: neither held a valid set).
     pub slot: Option<usize>,
     /// Its sequence number.
     pub sequence: u32,
@@ -130,7 +131,7 @@ impl<F: NorFlash> ParamStore<F> {
     }
 
     /// A slot's set and sequence, or why there is none.
-    fn read_slot(&mut self, k: usize) -> Result<(FlightParams, u32), SlotProblem> {
+    fn read_slot(&mut self, k: usize) -> Result<(FlightConfig, u32), SlotProblem> {
         let base = self.slots[k];
         let mut head = [0u8; HEADER_LEN];
         self.flash.read(base, &mut head).map_err(|_| SlotProblem::Read)?;
@@ -159,13 +160,14 @@ impl<F: NorFlash> ParamStore<F> {
         if le32(&head[24..28]) != COMMIT {
             return Err(SlotProblem::NotCommitted);
         }
-        let p: FlightParams = postcard::from_bytes(&body[..len]).map_err(|_| SlotProblem::Decode)?;
-        p.validate().map_err(|_| SlotProblem::Invalid)?;
+        let p: FlightConfig = postcard::from_bytes(&body[..len]).map_err(|_| SlotProblem::Decode)?;
+        FlightStack::check_config(&p).map_err(|_| SlotProblem::Invalid)?;
         Ok((p, le32(&head[16..20])))
     }
 
-    /// The newest valid set, or the defaults when neither slot holds one; with what each slot held.
-    pub fn load(&mut self) -> (FlightParams, LoadReport) {
+    /// The newest valid set (`None` when neither slot holds one: the caller flies its built-in configuration),
+    /// with what each slot held.
+    pub fn load(&mut self) -> (Option<FlightConfig>, LoadReport) {
         let a = self.read_slot(0);
         let b = self.read_slot(1);
         let problems = [a.as_ref().err().copied(), b.as_ref().err().copied()];
@@ -178,15 +180,15 @@ impl<F: NorFlash> ParamStore<F> {
             (Err(_), Err(_)) => None,
         };
         match best {
-            Some((slot, (p, sequence))) => (p, LoadReport { slot: Some(slot), sequence, problems }),
-            None => (FlightParams::default(), LoadReport { slot: None, sequence: 0, problems }),
+            Some((slot, (p, sequence))) => (Some(p), LoadReport { slot: Some(slot), sequence, problems }),
+            None => (None, LoadReport { slot: None, sequence: 0, problems }),
         }
     }
 
     /// Saves `p` (validated first) in the slot that does not hold the newest valid set; returns its sequence
     /// number. The newest set stays valid until the new one's commit word is written.
-    pub fn save(&mut self, p: &FlightParams) -> Result<u32, StoreError> {
-        p.validate().map_err(|e| StoreError::Invalid(e.field))?;
+    pub fn save(&mut self, p: &FlightConfig) -> Result<u32, StoreError> {
+        FlightStack::check_config(p).map_err(|e| StoreError::Invalid(e.field))?;
         let mut body = [0u8; MAX_BODY];
         // A set larger than MAX_BODY does not serialise into it: the slot, at least a header and MAX_BODY, holds it.
         let len = postcard::to_slice(p, &mut body).map_err(|_| StoreError::TooLarge)?.len();

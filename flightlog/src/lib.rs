@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 /// The file's first bytes.
 pub const LOG_MAGIC: &[u8; 6] = b"WLQLOG";
 /// Version of the log layout (header and record kinds).
-pub const LOG_FORMAT_VERSION: u16 = 9;
+pub const LOG_FORMAT_VERSION: u16 = 10;
 /// The record schema of format 5, whose records are those of format 6 without [`LogRecord::Station`] and
 /// without the parameter id `downlink.telemetry_every_steps` (same variant indices and fields otherwise):
 /// such logs are read as they are.
@@ -47,6 +47,9 @@ pub const SCHEMA_HASH_FORMAT_7: &str = "6da2960026f0b4d8";
 /// The record schema of format 8, whose records are those of format 9 without the flow's refusal of a
 /// repeating floor (`NoFlowReason::RepeatingTexture`, an appended variant): such logs are read as they are.
 pub const SCHEMA_HASH_FORMAT_8: &str = "586ae63c49f24cfc";
+/// The record schema of format 9, whose records are those of format 10 without the configuration upload's
+/// messages (`Uplink::Config`, `Downlink::ConfigAck`, appended variants): such logs are read as they are.
+pub const SCHEMA_HASH_FORMAT_9: &str = "e1de2b7ec4b68d9c";
 
 /// The record schema a log of format `version` was written in, for the versions this reader reads.
 pub fn schema_hash_of_format(version: u16) -> Option<String> {
@@ -55,6 +58,7 @@ pub fn schema_hash_of_format(version: u16) -> Option<String> {
         6 => Some(SCHEMA_HASH_FORMAT_6.to_string()),
         7 => Some(SCHEMA_HASH_FORMAT_7.to_string()),
         8 => Some(SCHEMA_HASH_FORMAT_8.to_string()),
+        9 => Some(SCHEMA_HASH_FORMAT_9.to_string()),
         LOG_FORMAT_VERSION => Some(schema_hash()),
         _ => None,
     }

@@ -198,16 +198,16 @@ fn a_full_disk_keeps_what_was_written() {
 #[test]
 fn golden_bytes_of_the_header_and_the_schema_hash() {
     let b = header_bytes(&sample_header()).unwrap();
-    // "WLQLOG", version 9 (u16 LE), JSON length (u32 LE), the JSON, its CRC-32 (u32 LE).
-    assert_eq!(&b[..8], b"WLQLOG\x09\x00");
+    // "WLQLOG", version 10 (u16 LE), JSON length (u32 LE), the JSON, its CRC-32 (u32 LE).
+    assert_eq!(&b[..8], b"WLQLOG\x0a\x00");
     let len = u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize;
     assert_eq!(b.len(), 16 + len);
     let json = &b[12..12 + len];
-    assert!(std::str::from_utf8(json).unwrap().starts_with("{\"format_version\":9,\"schema_hash\":\""));
+    assert!(std::str::from_utf8(json).unwrap().starts_with("{\"format_version\":10,\"schema_hash\":\""));
     assert_eq!(b[12 + len..], crc32fast::hash(json).to_le_bytes());
     assert_eq!(crc32fast::hash(b"123456789"), 0xCBF4_3926, "CRC-32 (IEEE) check value");
     // The schema fingerprint of this version's records: any change to a record's fields changes it.
-    assert_eq!(schema_hash(), "e1de2b7ec4b68d9c");
+    assert_eq!(schema_hash(), "b9fd0ddad61910e4");
 }
 
 #[test]
@@ -269,16 +269,17 @@ fn older_log(version: u8, hash: &str) -> Vec<u8> {
 }
 
 #[test]
-fn format_5_to_8_logs_read_as_they_were_written() {
+fn format_5_to_9_logs_read_as_they_were_written() {
     // Format 5 is format 6 without the station's records, format 6 format 7 without the packed messages,
     // format 7 format 8 without the link status and the unauthenticated arming refusal, format 8 format 9
-    // without the flow's repeating-texture refusal: their headers (their version, their schema hash) and
-    // records read unchanged.
+    // without the flow's repeating-texture refusal, format 9 format 10 without the configuration upload's
+    // messages: their headers (their version, their schema hash) and records read unchanged.
     for (version, hash) in [
         (5u8, SCHEMA_HASH_FORMAT_5),
         (6, SCHEMA_HASH_FORMAT_6),
         (7, SCHEMA_HASH_FORMAT_7),
         (8, SCHEMA_HASH_FORMAT_8),
+        (9, SCHEMA_HASH_FORMAT_9),
     ] {
         let bytes = older_log(version, hash);
         let log = parse_log(&bytes).unwrap();
@@ -287,9 +288,9 @@ fn format_5_to_8_logs_read_as_they_were_written() {
         assert_eq!(log.header.format_version, u16::from(version));
         // As another version it is refused naming the byte.
         let mut bad = bytes.clone();
-        bad[6] = 10;
+        bad[6] = 11;
         let e = parse_log(&bad).unwrap_err().to_string();
-        assert!(e.contains("version 10 at byte 6"), "{e}");
+        assert!(e.contains("version 11 at byte 6"), "{e}");
         // With today's schema hash under the old version: refused, naming the schema it should have.
         let e = parse_log(&older_log(version, &schema_hash())).unwrap_err().to_string();
         assert!(e.contains("record schema") && e.contains(hash), "{e}");

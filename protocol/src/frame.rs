@@ -391,6 +391,49 @@ mod tests {
     }
 
     #[test]
+    fn golden_bytes_of_a_configuration_piece_and_its_answer() {
+        let body = |m: &[u8]| {
+            let mut raw = m.to_vec();
+            raw.extend(crc16(&raw).to_le_bytes());
+            raw
+        };
+        let decode = |f: &[u8]| {
+            let mut raw = f[..f.len() - 1].to_vec();
+            let n = cobs_decode_in_place(&mut raw).unwrap();
+            raw.truncate(n);
+            raw
+        };
+        let mut buf = [0u8; 128];
+        // Uplink 9 (Config): CRC-32 0x12345678 as a varint (F8 AC D1 91 01), total 700 (BC 05), offset 64
+        // (40), length 3, then the 32 bytes (3 of them used, the rest zeros).
+        let mut bytes = [0u8; crate::CONFIG_CHUNK_BYTES];
+        bytes[..3].copy_from_slice(&[0xAA, 0xBB, 0xCC]);
+        let chunk = crate::ConfigChunk { crc32: 0x1234_5678, total_len: 700, offset: 64, len: 3, bytes };
+        let f = encode(&Uplink::Config(chunk), &mut buf).unwrap().to_vec();
+        let mut want =
+            vec![WIRE_VERSION, 9, 0xF8, 0xAC, 0xD1, 0x91, 0x01, 0xBC, 0x05, 0x40, 0x03, 0xAA, 0xBB, 0xCC];
+        want.extend([0u8; 29]);
+        assert_eq!(decode(&f), body(&want));
+        assert_eq!(crc16(&want), 0x8364);
+        // Downlink 6 (ConfigAck): CRC-32 0x12345678, Applied (0) with saved sequence Some(3); Refused (1)
+        // Invalid (4).
+        let ack = crate::ConfigAck {
+            crc32: 0x1234_5678,
+            outcome: crate::ConfigOutcome::Applied { saved_sequence: Some(3) },
+        };
+        let f = encode(&crate::Downlink::ConfigAck(ack), &mut buf).unwrap().to_vec();
+        assert_eq!(decode(&f), body(&[WIRE_VERSION, 6, 0xF8, 0xAC, 0xD1, 0x91, 0x01, 0, 1, 3]));
+        // COBS: [08 01 06 F8 AC D1 91 01] [05 01 03 EE 08], CRC-16 0x08EE; delimiter 00.
+        assert_eq!(f, [0x08, 0x01, 0x06, 0xF8, 0xAC, 0xD1, 0x91, 0x01, 0x05, 0x01, 0x03, 0xEE, 0x08, 0x00]);
+        let ack = crate::ConfigAck {
+            crc32: 0x1234_5678,
+            outcome: crate::ConfigOutcome::Refused(crate::ConfigRefusal::Invalid),
+        };
+        let f = encode(&crate::Downlink::ConfigAck(ack), &mut buf).unwrap().to_vec();
+        assert_eq!(decode(&f), body(&[WIRE_VERSION, 6, 0xF8, 0xAC, 0xD1, 0x91, 0x01, 1, 4]));
+    }
+
+    #[test]
     fn golden_bytes_of_the_link_status_and_the_unauthenticated_refusal() {
         use control_core::{Command, CommandResult, Refusal};
         let frame = |raw: &[u8]| {

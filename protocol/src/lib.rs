@@ -3,9 +3,10 @@
 //!
 //! - [`Uplink`]: ground station to vehicle: the forward camera's line measurement of each frame (solved into a
 //!   pose on board, with the estimator's attitude at the frame's capture time), the downward camera's optical
-//!   flow of each frame pair (derotated and scaled on board), operator commands, heartbeats, parameters.
-//! - [`Downlink`]: vehicle to ground station: telemetry, command acknowledgements, parameter replies and the
-//!   answers to the station's clock synchronisation.
+//!   flow of each frame pair (derotated and scaled on board), operator commands, heartbeats, parameters, and a
+//!   whole flight configuration in pieces ([`ConfigChunk`]).
+//! - [`Downlink`]: vehicle to ground station: telemetry, command acknowledgements, parameter replies, the
+//!   answers to the station's clock synchronisation and to a configuration upload ([`ConfigAck`]).
 //!
 //! All times are microseconds on the vehicle's clock.
 #![cfg_attr(not(test), no_std)]
@@ -53,7 +54,73 @@ pub struct FlowMeasurement {
     pub result: Result<FlowStats, NoFlowReason>,
 }
 
+/// Bytes of an upload a [`ConfigChunk`] carries at most.
+pub const CONFIG_CHUNK_BYTES: usize = 32;
+
+/// A piece of a flight configuration sent to the vehicle on the ground (`flight_core::config_upload`): the
+/// upload is the configuration's schema key and its postcard bytes, named by their CRC-32; the pieces may come
+/// in any order and more than once.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, postcard_schema::Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ConfigChunk {
+    /// CRC-32 (ISO-HDLC) of the whole upload: names it (a piece of another upload starts that one afresh).
+    pub crc32: u32,
+    /// The upload's length (bytes).
+    pub total_len: u16,
+    /// Where this piece starts in the upload.
+    pub offset: u16,
+    /// How many of `bytes` belong to the upload (1 to [`CONFIG_CHUNK_BYTES`]).
+    pub len: u8,
+    /// The piece, padded with zeros.
+    pub bytes: [u8; CONFIG_CHUNK_BYTES],
+}
+
+/// The vehicle's answer to a whole configuration upload.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, postcard_schema::Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ConfigAck {
+    /// The upload's CRC-32 ([`ConfigChunk::crc32`]).
+    pub crc32: u32,
+    /// What became of it.
+    pub outcome: ConfigOutcome,
+}
+
+/// What became of a configuration upload.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, postcard_schema::Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ConfigOutcome {
+    /// The flight stack runs on it (rebuilt from it: the estimator starts afresh). `saved_sequence`: the
+    /// sequence number it was stored under in flash, so that it is loaded at the next boot; `None` when it
+    /// could not be stored (the vehicle says why in its log) and it lasts until the power goes.
+    Applied {
+        /// The flash store's sequence number of the set.
+        saved_sequence: Option<u32>,
+    },
+    /// Not taken; the vehicle runs on what it had.
+    Refused(ConfigRefusal),
+}
+
+/// Why a configuration upload was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, postcard_schema::Schema)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ConfigRefusal {
+    /// Not while armed: land and disarm first.
+    Armed,
+    /// The bytes do not match their CRC-32, or the pieces do not fit together (lengths, offsets).
+    Damaged,
+    /// A configuration of another layout (another firmware version's schema key).
+    OtherLayout,
+    /// The bytes do not decode as a configuration.
+    Undecodable,
+    /// The configuration fails the flight stack's checks (the vehicle names the field in its log; the
+    /// station checks with the same code before it sends).
+    Invalid,
+    /// Longer than the vehicle takes.
+    TooLarge,
+}
+
 /// Ground station to vehicle.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, postcard_schema::Schema)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Uplink {
@@ -85,6 +152,8 @@ pub enum Uplink {
     PackedVision(PackedVision),
     /// A downward-camera frame pair's optical flow in fewer bytes ([`packed`]): what the station sends.
     PackedFlow(PackedFlow),
+    /// A piece of a flight configuration (on the ground only); answered by [`Downlink::ConfigAck`] once whole.
+    Config(ConfigChunk),
 }
 
 impl Uplink {
@@ -169,6 +238,8 @@ pub enum Downlink {
     PackedTelemetry(PackedTelemetry),
     /// The radio link's state and counters, once a second.
     LinkStatus(LinkStatus),
+    /// The answer to a whole configuration upload.
+    ConfigAck(ConfigAck),
 }
 
 impl Downlink {

@@ -385,6 +385,31 @@ impl QemuFc {
         }
     }
 
+    /// Uploads a whole flight configuration as a station does on the ground (the pieces of
+    /// `flight_core::config_upload` over the radio's path) and waits for the firmware's answer: an error unless
+    /// it rebuilt its flight stack from it. Sent before the first step, it makes the firmware fly exactly what
+    /// a flight stack built from `cfg` in this process flies.
+    pub fn configure(&mut self, cfg: &flight_core::FlightConfig) -> Result<protocol::ConfigAck> {
+        let (crc32, pieces) = flight_core::config_upload::chunks(cfg)
+            .map_err(|r| anyhow::anyhow!("the configuration cannot be uploaded: {r:?}"))?;
+        let mut out = Vec::new();
+        let mut buf = [0u8; MAX_FRAME];
+        for p in &pieces {
+            let msg = FilToFc::Link(protocol::Uplink::Config(*p));
+            out.extend_from_slice(
+                encode(&msg, &mut buf).map_err(|e| anyhow::anyhow!("cannot frame {msg:?}: {e:?}"))?,
+            );
+        }
+        self.to_fc.write_all(&out).with_context(|| self.lost("writing to the firmware's pipe"))?;
+        match self.receive(self.opts.step_timeout, "configuration upload")? {
+            FcToFil::Link(Downlink::ConfigAck(a)) if a.crc32 == crc32 => match a.outcome {
+                protocol::ConfigOutcome::Applied { .. } => Ok(a),
+                protocol::ConfigOutcome::Refused(r) => bail!("the firmware refused the configuration: {r:?}"),
+            },
+            other => bail!("the firmware answered the configuration upload with {other:?}"),
+        }
+    }
+
     /// The keyed link's cost per frame on the firmware (`flight_core::fil::measure_auth_cost`), in
     /// instructions.
     pub fn auth_cost(&mut self) -> Result<flight_core::fil::AuthCost> {

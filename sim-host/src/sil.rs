@@ -25,7 +25,7 @@ use anyhow::Result;
 use control_core::FlightMode;
 use control_core::estimator::ImuSample;
 use flight_core::flow::FlowOutcome;
-use flight_core::{FlightConfig, FlightStack, StepInput, StepReport};
+use flight_core::{FlightStack, StepInput, StepReport};
 use geometry::frames::Attitude;
 use geometry::{Mat3, Vec2, Vec3};
 use protocol::{FlowMeasurement, Uplink, VisionMeasurement};
@@ -370,28 +370,6 @@ pub struct StationPorts {
     pub downlink: VecDeque<protocol::Downlink>,
 }
 
-/// The parts of a flight configuration that differ from the firmware's built-in one.
-pub fn firmware_config_differences(cfg: &FlightConfig) -> Vec<&'static str> {
-    let fw = FlightConfig::paper();
-    let (a, b) = (&cfg.control, &fw.control);
-    let mut d = Vec::new();
-    for (name, same) in [
-        ("vehicle", a.vehicle == b.vehicle),
-        ("gains", a.gains == b.gains),
-        ("estimator", a.estimator == b.estimator),
-        ("trajectory", a.trajectory == b.trajectory),
-        ("failsafe", a.failsafe == b.failsafe),
-        ("model.start_position_m (home)", a.home_m == b.home_m),
-        ("forward_camera or the line (vision)", cfg.vision == fw.vision),
-        ("down_camera (flow)", cfg.flow == fw.flow),
-    ] {
-        if !same {
-            d.push(name);
-        }
-    }
-    d
-}
-
 /// Roll, pitch, yaw (from facing the wall) of a world-from-body rotation, in f64.
 fn attitude_of(r: &[[f64; 3]; 3]) -> [f64; 3] {
     // R_NB = R_WN^T R_WB: rows of R_NB are (-row 1, row 0, row 2) of R_WB.
@@ -450,16 +428,13 @@ impl Sil {
                 FlightStack::new(scenario.flight_config()).map_err(|e| anyhow::anyhow!("{e}"))?,
             )),
             FcChoice::Qemu(opts) => {
-                let differs = firmware_config_differences(&scenario.flight_config());
-                if !differs.is_empty() {
-                    anyhow::bail!(
-                        "the firmware flies its built-in configuration (the paper scenario's); scenario `{}` differs \
-                         in: {}",
-                        scenario.name,
-                        differs.join(", ")
-                    );
-                }
-                Fc::Qemu(Box::new(QemuFc::start(opts)?))
+                // The scenario's flight configuration goes up before the first step, as a station uploads one
+                // on the ground (the firmware rebuilds its flight stack from it and stores it).
+                let mut q = QemuFc::start(opts)?;
+                anyhow::Context::with_context(q.configure(&scenario.flight_config()), || {
+                    format!("uploading scenario `{}`'s flight configuration", scenario.name)
+                })?;
+                Fc::Qemu(Box::new(q))
             }
         };
         let dt_us = (m.physics_step_s * 1e6).round() as u64;

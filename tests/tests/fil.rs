@@ -181,3 +181,49 @@ fn a_firmware_that_does_not_speak_the_lockstep_is_an_error_and_leaves_nothing() 
     assert!(err.contains("the firmware stopped answering") && err.contains("qemu variant"), "{err}");
     assert_eq!(pipes(), Vec::<String>::new(), "the run's directory is removed");
 }
+
+/// A scenario whose flight configuration differs from the firmware's built-in one in every part (gains, the
+/// estimator, the trajectory, the failsafes, the line, the camera) flies in QEMU after the upload, bit for bit
+/// as the flight code in this process flies it.
+#[test]
+fn a_scenario_with_other_gains_flies_in_qemu_after_the_upload() {
+    if !available() {
+        return;
+    }
+    let _one = QEMU_RUNS.lock().unwrap_or_else(|e| e.into_inner());
+    let mut s = Scenario::paper();
+    s.name = "other-gains".into();
+    s.gains.altitude.a_z1 *= 1.2;
+    s.gains.altitude.a_z2 *= 1.1;
+    s.gains.roll.b[2] *= 0.9;
+    s.gains.pitch.b[2] *= 0.9;
+    s.estimator.accel_noise *= 1.5;
+    s.trajectory.speed_m_s = 0.2;
+    s.trajectory.y_d_m = 1.2;
+    s.trajectory.z_d_m = 0.85;
+    s.failsafe.vision_land_after_s = 4.0;
+    s.scene.line_x_end_m = 2.0;
+    s.trajectory.x_range_m = [0.0, 2.0];
+    s.forward_camera.fx_px = 330.0;
+    s.forward_camera.fy_px = 330.0;
+    s.validate().unwrap();
+    assert_ne!(s.flight_config(), flight_core::FlightConfig::paper());
+    let seconds = 30.0;
+    let fly = |fc: &FcChoice| {
+        let mut sil = Sil::with_fc(&s, 5, CameraMode::Analytic, fc).unwrap();
+        sil.log_motor_commands();
+        let st = sil.run(seconds, |_| {});
+        (st, sil.motor_commands().unwrap().to_vec())
+    };
+    let (host, host_cmds) = fly(&FcChoice::Sil);
+    let (fw, fw_cmds) = fly(&FcChoice::Qemu(QemuOptions::new(elf())));
+    assert!(fw.fc_error.is_none(), "{:?}", fw.fc_error);
+    assert_eq!(host_cmds.len(), fw_cmds.len());
+    if let Some(k) = host_cmds.iter().zip(&fw_cmds).position(|(a, b)| a != b) {
+        panic!("motor commands differ first at control step {k}");
+    }
+    assert_eq!(host.rms_error_m, fw.rms_error_m);
+    check_partial_flight(&fw, &s, "firmware in QEMU, other gains");
+    assert!(fw.passes_done >= 1, "{fw:?}");
+    eprintln!("other gains in QEMU: {} steps bit for bit, rms {:?}", fw_cmds.len(), fw.rms_error_m);
+}

@@ -95,9 +95,9 @@ fn damaged_logs_give_offsets_and_keep_the_intact_records() {
 
     // Another format version: a clear error naming the byte.
     let mut v = bytes.clone();
-    v[6] = 10;
+    v[6] = 11;
     let e = format!("{:#}", parse_log(&v).unwrap_err());
-    assert!(e.contains("version 10") && e.contains("byte 6"), "{e}");
+    assert!(e.contains("version 11") && e.contains("byte 6"), "{e}");
     // Not a log at all.
     let e = format!("{:#}", parse_log(b"PNG and other things").unwrap_err());
     assert!(e.contains("not a flight log"), "{e}");

@@ -81,16 +81,18 @@ fn store(flash: SimFlash) -> ParamStore<SimFlash> {
     ParamStore::new(flash, [0, 2 * SECTOR as u32], SECTOR as u32).unwrap()
 }
 
-fn set_a() -> FlightParams {
-    let mut p = FlightParams::default();
-    p.trajectory.speed_m_s = 0.25;
+fn set_a() -> FlightConfig {
+    let mut p = FlightConfig::paper();
+    p.control.trajectory.speed_m_s = 0.25;
     p
 }
 
-fn set_b() -> FlightParams {
-    let mut p = FlightParams::default();
-    p.trajectory.speed_m_s = 0.15;
-    p.trajectory.y_d_m = 1.1;
+fn set_b() -> FlightConfig {
+    let mut p = FlightConfig::paper();
+    p.control.trajectory.speed_m_s = 0.15;
+    p.control.trajectory.y_d_m = 1.1;
+    // Another line: the stored set is the whole configuration, the vision part included.
+    p.vision.target.x_end_m = 2.0;
     p
 }
 
@@ -98,26 +100,33 @@ fn set_b() -> FlightParams {
 fn a_blank_flash_gives_the_defaults_and_saves_alternate_between_the_slots() {
     let mut s = store(SimFlash::new());
     let (p, r) = s.load();
-    assert_eq!(p, FlightParams::default());
+    assert_eq!(p, None);
     assert_eq!(r, LoadReport { slot: None, sequence: 0, problems: [Some(SlotProblem::Empty); 2] });
     assert_eq!(s.save(&set_a()), Ok(1));
     assert_eq!(
         s.load(),
-        (set_a(), LoadReport { slot: Some(0), sequence: 1, problems: [None, Some(SlotProblem::Empty)] })
+        (
+            Some(set_a()),
+            LoadReport { slot: Some(0), sequence: 1, problems: [None, Some(SlotProblem::Empty)] }
+        )
     );
     assert_eq!(s.save(&set_b()), Ok(2));
     let (p, r) = s.load();
-    assert_eq!((p, r.slot, r.sequence), (set_b(), Some(1), 2));
+    assert_eq!((p, r.slot, r.sequence), (Some(set_b()), Some(1), 2));
     assert_eq!(s.save(&set_a()), Ok(3));
     assert_eq!(s.load().1.slot, Some(0), "the older slot is the one written");
     // An invalid set is refused before anything is erased, naming its field.
     let mut bad = set_a();
-    bad.trajectory.speed_m_s = -1.0;
+    bad.control.trajectory.speed_m_s = -1.0;
     assert!(matches!(s.save(&bad), Err(StoreError::Invalid(_))));
-    assert_eq!(s.load().0, set_a());
+    // So is one whose vision part is invalid.
+    let mut bad = set_a();
+    bad.vision.target.x_end_m = -1.0;
+    assert_eq!(s.save(&bad), Err(StoreError::Invalid("vision.target")));
+    assert_eq!(s.load().0, Some(set_a()));
     // The body of a set fits with room to spare.
     let mut buf = [0u8; MAX_BODY];
-    let n = postcard::to_slice(&FlightParams::default(), &mut buf).unwrap().len();
+    let n = postcard::to_slice(&FlightConfig::paper(), &mut buf).unwrap().len();
     assert!(HEADER_LEN + n < SECTOR, "{n} bytes");
 }
 
@@ -141,17 +150,17 @@ fn a_power_cut_at_every_step_of_a_save_leaves_the_old_set_or_the_new_one() {
         let flash = s.into_inner();
         let mut s = store(SimFlash { mem: flash.mem, budget: None, ops: 0 });
         let (p, r) = s.load();
-        if p == set_a() {
+        if p == Some(set_a()) {
             old += 1;
             assert_eq!((r.slot, r.sequence), (Some(0), 1));
         } else {
-            assert_eq!(p, set_b(), "cut after {cut}: {r:?}");
+            assert_eq!(p, Some(set_b()), "cut after {cut}: {r:?}");
             assert_eq!(r.sequence, 2);
             new += 1;
         }
         // And the next save works from there.
         let next = s.save(&set_a()).unwrap();
-        assert_eq!(s.load().0, set_a(), "after the cut at {cut}, saved as {next}");
+        assert_eq!(s.load().0, Some(set_a()), "after the cut at {cut}, saved as {next}");
     }
     // Only the last operation (the commit word's last byte) makes the new set.
     assert_eq!((old, new), (total, 1));
@@ -168,7 +177,7 @@ fn damage_and_other_layouts_are_named_and_the_other_slot_is_used() {
     flash.mem[slot1 + HEADER_LEN + 3] ^= 0x10;
     let mut s = store(flash);
     let (p, r) = s.load();
-    assert_eq!((p, r.slot, r.problems[1]), (set_a(), Some(0), Some(SlotProblem::Crc)));
+    assert_eq!((p, r.slot, r.problems[1]), (Some(set_a()), Some(0), Some(SlotProblem::Crc)));
     let mut flash = s.into_inner();
     flash.mem[slot1 + HEADER_LEN + 3] ^= 0x10;
     // Another schema key (a firmware with another parameter layout) and another store format.
@@ -191,7 +200,7 @@ fn damage_and_other_layouts_are_named_and_the_other_slot_is_used() {
     flash.mem[0..4].copy_from_slice(b"XXXX");
     let mut s = store(flash);
     let (p, r) = s.load();
-    assert_eq!(p, FlightParams::default());
+    assert_eq!(p, None);
     assert_eq!(r.problems, [Some(SlotProblem::Empty), Some(SlotProblem::NotCommitted)]);
     // A layout that does not fit is refused.
     assert!(matches!(ParamStore::new(SimFlash::new(), [0, 100], SECTOR as u32), Err(StoreError::Layout)));
@@ -231,7 +240,7 @@ fn sequence_numbers_wrap_lengths_are_bounded_and_slots_must_hold_a_set() {
     write_slot(&mut flash.mem, slot1, 0, &b, b.len() as u16);
     let mut s = store(flash);
     let (p, r) = s.load();
-    assert_eq!((p, r.slot, r.sequence), (set_b(), Some(1), 0));
+    assert_eq!((p, r.slot, r.sequence), (Some(set_b()), Some(1), 0));
     // And the next save goes to slot 0 with sequence 1.
     assert_eq!(s.save(&set_a()), Ok(1));
     assert_eq!(s.load().1.slot, Some(0));
@@ -246,7 +255,7 @@ fn sequence_numbers_wrap_lengths_are_bounded_and_slots_must_hold_a_set() {
     write_slot(&mut flash.mem, slot1, 7, &b, b.len() as u16);
     assert_eq!(
         store(flash).load(),
-        (set_a(), LoadReport { slot: Some(0), sequence: 7, problems: [None, None] })
+        (Some(set_a()), LoadReport { slot: Some(0), sequence: 7, problems: [None, None] })
     );
     // A length beyond MAX_BODY is named; MAX_BODY itself is a length, whose CRC then fails.
     let mut flash = SimFlash::new();

@@ -395,6 +395,9 @@ fn station_loop(
                     }
                 }
                 Downlink::CommandAck(r) => stats.command_acks.push(format!("{t:.2} s: {r:?}")),
+                Downlink::ConfigAck(a) => {
+                    stats.config_acks.push(format!("{t:.2} s: {:08x} {:?}", a.crc32, a.outcome))
+                }
                 Downlink::LinkStatus(l) => stats.vehicle_link = Some(l),
                 Downlink::Param(r) => {
                     if opts.compact && r.id == control_core::params::ParamId::TelemetryEvery {

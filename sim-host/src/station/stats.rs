@@ -35,6 +35,8 @@ pub struct StationStats {
     pub telemetry: u64,
     /// Command acknowledgements received, with the refusals' reasons.
     pub command_acks: Vec<String>,
+    /// Answers to configuration uploads (what became of each).
+    pub config_acks: Vec<String>,
     /// Time-sync answers received.
     pub time_sync_answers: u64,
     /// Of those, refused by the clock sync: arriving before their request left, or slower than its limit.
