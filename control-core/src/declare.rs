@@ -86,6 +86,12 @@ impl<const N: usize> Ranged for [f32; N] {
     }
 }
 
+impl<const N: usize> Ranged for [u8; N] {
+    fn within(&self, r: &Range) -> bool {
+        self.iter().all(|v| r.contains(*v as f32))
+    }
+}
+
 /// Checks one declared value: the error names the field and states the range.
 pub fn check_declared<T: Ranged>(v: &T, spec: &Check) -> Result<(), ParamError> {
     match &spec.range {

@@ -130,6 +130,20 @@ pub fn bounded_axis(
     (u, angle_ref - sign * pos / k1, saturated)
 }
 
+/// What the horizontal axes follow.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Horizontal {
+    /// The position and velocity references (paper eq. 33-34).
+    Position,
+    /// Roll and pitch references (rad): the pilot's manual mode.
+    Attitude {
+        /// Roll (rad).
+        roll: f32,
+        /// Pitch (rad).
+        pitch: f32,
+    },
+}
+
 /// The controller: the laws plus their small internal states (integrals, trims).
 #[derive(Clone, Copy, Debug)]
 pub struct Controller {
@@ -178,6 +192,20 @@ impl Controller {
         integrate: bool,
         rotor_speeds: [f32; 4],
     ) -> (Demand, LawStatus) {
+        self.update_with(est, sp, Horizontal::Position, dt, integrate, rotor_speeds)
+    }
+
+    /// [`Controller::update`] with the horizontal axes as `horizontal` says: the position laws (eq. 33-34), or
+    /// a given roll and pitch (the pilot's manual mode), the altitude and yaw laws as ever.
+    pub fn update_with(
+        &mut self,
+        est: &StateEstimate,
+        sp: &Setpoint,
+        horizontal: Horizontal,
+        dt: f32,
+        integrate: bool,
+        rotor_speeds: [f32; 4],
+    ) -> (Demand, LawStatus) {
         let g = &self.gains;
         let v = &self.vehicle;
         let att = est.attitude;
@@ -194,14 +222,23 @@ impl Controller {
         let a_n = WORLD_FROM_NAV.tmul_vec(sp.accel_m_s2 + air * self.drag_per_s);
         let (sy, cy) = geometry::trig::sin_cos(yaw);
         let head = |x: Vec3| Vec3::new(cy * x.x + sy * x.y, -sy * x.x + cy * x.y, x.z);
-        let (e_h, de_h, a_h) = (head(e_n), head(de_n), head(a_n));
+        let (mut e_h, mut de_h, a_h) = (head(e_n), head(de_n), head(a_n));
+        // Attitude only: no position terms, the references are the given angles.
+        let given = match horizontal {
+            Horizontal::Position => None,
+            Horizontal::Attitude { roll, pitch } => {
+                (e_h.x, e_h.y, de_h.x, de_h.y) = (0.0, 0.0, 0.0, 0.0);
+                Some((roll, pitch))
+            }
+        };
+        let integrate_trims = integrate && given.is_none();
 
         // Trims: slow integrals of the position error into the angle references (zero gains: the paper).
         // Anti-windup: an axis integrates only while its position and velocity terms are unsaturated.
         let linear = |a: &SaturatedAxisGains, e: f32, de: f32| {
             (a.k[2] * e).abs() < a.b[2] && (a.k[3] * de).abs() < a.b[3]
         };
-        if integrate && dt > 0.0 {
+        if integrate_trims && dt > 0.0 {
             let p = &g.pitch;
             let r = &g.roll;
             if linear(p, e_h.x, de_h.x) {
@@ -222,10 +259,9 @@ impl Controller {
         // Feed-forward tilt for the desired acceleration: forward a = g tan(pitch), left a = -g tan(roll).
         let pitch_ff = libm::atanf(a_h.x / GRAVITY);
         let roll_ff = -libm::atanf(a_h.y / GRAVITY);
-        let (u_pitch, cmd_pitch, sat_p) =
-            bounded_axis(&g.pitch, 1.0, e_h.x, de_h.x, pitch, w.y, pitch_ff + self.trim[1]);
-        let (u_roll, cmd_roll, sat_r) =
-            bounded_axis(&g.roll, -1.0, e_h.y, de_h.y, roll, w.x, roll_ff + self.trim[0]);
+        let (roll_ref, pitch_ref) = given.unwrap_or((roll_ff + self.trim[0], pitch_ff + self.trim[1]));
+        let (u_pitch, cmd_pitch, sat_p) = bounded_axis(&g.pitch, 1.0, e_h.x, de_h.x, pitch, w.y, pitch_ref);
+        let (u_roll, cmd_roll, sat_r) = bounded_axis(&g.roll, -1.0, e_h.y, de_h.y, roll, w.x, roll_ref);
 
         // Yaw (eq. 31).
         let y = &g.yaw;

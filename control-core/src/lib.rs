@@ -10,7 +10,8 @@
 //!   (eq. 33-34), with the traps fixed (clamped division, sums of saturations checked by Routh-Hurwitz);
 //! - [`trajectory`]: the back-and-forth sweep with the direction flag (section 5.2), take-off and landing;
 //! - [`mixer`]: thrust and torques to rotor speeds within the motor limits;
-//! - modes and failsafes (this module): arming checks, vision lost, link lost, IMU fault, tilt.
+//! - modes and failsafes (this module): arming checks, vision lost, link lost, IMU fault, tilt;
+//! - [`pilot`]: the pilot's RC transmitter: kill switch, arm switch, mode switch, manual mode, RC loss.
 //!
 //! Time enters only as timestamps; nothing reads a clock, logs or panics.
 #![cfg_attr(not(test), no_std)]
@@ -26,11 +27,12 @@ pub mod laws;
 pub mod mixer;
 pub mod motion;
 pub mod params;
+pub mod pilot;
 pub mod trajectory;
 
 use estimator::{AccelContext, BodyVelocity, Estimator, FuseOutcome, ImuSample, PositionFix, StateEstimate};
 use geometry::Vec3;
-use laws::{Controller, LawStatus, Setpoint};
+use laws::{Controller, Horizontal, LawStatus, Setpoint};
 use mixer::MixerOutput;
 use params::FlightParams;
 use trajectory::{Move, Sweep};
@@ -144,6 +146,8 @@ pub enum FlightMode {
     Landing,
     /// Motors off after a fault (IMU, estimator, excessive tilt).
     Emergency,
+    /// The pilot flies: stick tilt, climb rate and yaw rate from the RC transmitter ([`pilot`]).
+    Manual,
 }
 
 impl FlightMode {
@@ -156,6 +160,7 @@ impl FlightMode {
                 | FlightMode::Tracking
                 | FlightMode::VisionHold
                 | FlightMode::Landing
+                | FlightMode::Manual
         )
     }
 }
@@ -180,6 +185,10 @@ pub enum Failsafe {
     /// The take-off did not reach and hold its height in time: hovering where it is when airborne, else
     /// landing.
     TakeOffTimeout,
+    /// The RC link was lost where it matters (manual flight, or `rc.required`): holding level, then landing.
+    RcLost,
+    /// The pilot's kill switch: motors off.
+    Killed,
 }
 
 /// Why a command was refused.
@@ -200,6 +209,12 @@ pub enum Refusal {
     /// Arming over a radio link that is not authenticated (no key provisioned), by a firmware built without
     /// the `unauthenticated-link` feature (docs/security.md). Refused by the vehicle's link layer.
     Unauthenticated,
+    /// Arming: the pilot's kill switch is high.
+    KillSwitch,
+    /// Arming: a receiver is in use and the pilot's arm switch is low.
+    ArmSwitchOff,
+    /// Arming: `rc.required` and no RC link.
+    NoRc,
 }
 
 /// The outcome of the last command.
@@ -262,6 +277,8 @@ pub struct ControlInputs<'a> {
     /// (`Some(true)` landed, `Some(false)` flying). `None` on this project's vehicles, whose flight mode
     /// says it.
     pub landed: Option<bool>,
+    /// The pilot's transmitter, when a receiver has been heard ([`pilot`]).
+    pub pilot: Option<pilot::PilotInput>,
 }
 
 /// Status of the flight code.
@@ -361,6 +378,9 @@ pub struct ControlCore {
     /// The way back to the sweep's distance and height after a hold (y, z), and when it began.
     rejoin: Option<(trajectory::Rejoin, trajectory::Rejoin, u64)>,
     limiter: laws::SetpointLimiter,
+    /// The pilot's switches and manual references ([`pilot`]), and this step's input.
+    pilot: pilot::PilotState,
+    pilot_input: Option<pilot::PilotInput>,
 }
 
 impl ControlCore {
@@ -419,6 +439,8 @@ impl ControlCore {
             unsupported_since_us: None,
             yaw_frame: (false, 0),
             limiter: laws::SetpointLimiter::new(),
+            pilot: pilot::PilotState::default(),
+            pilot_input: None,
         }
     }
 
@@ -492,6 +514,8 @@ impl ControlCore {
                 let aligned = self.first_imu_us.is_some_and(|f| now.saturating_sub(f) > 500_000);
                 if self.fault_latched {
                     Err(Refusal::FaultLatched)
+                } else if let Some(r) = self.pilot_arm_refusal(self.pilot_input) {
+                    Err(r)
                 } else if !imu_ok || !aligned || !self.estimator.is_healthy() {
                     Err(Refusal::SensorsUnhealthy)
                 } else if tilt > self.params.failsafe.max_arming_tilt_rad {
@@ -542,7 +566,7 @@ impl ControlCore {
                 self.sweep = None;
                 Ok(())
             }
-            (Command::Land, FlightMode::TakeOff | Hover | Tracking | VisionHold) => {
+            (Command::Land, FlightMode::TakeOff | Hover | Tracking | VisionHold | FlightMode::Manual) => {
                 self.begin_landing(now, est);
                 Ok(())
             }
@@ -713,12 +737,15 @@ impl ControlCore {
             self.motors_off(FlightMode::Emergency);
         }
 
+        // The pilot's transmitter first: its kill switch wins over everything ([`pilot`]).
+        self.pilot_input = inp.pilot;
+        self.apply_pilot(inp.pilot, now, &est, imu_ok, link_ok);
         if let Some(cmd) = inp.command {
             self.handle_command(cmd, now, &est, imu_ok, link_ok);
         }
 
-        // Failsafes of the airborne modes.
-        if self.mode.airborne() {
+        // Failsafes of the airborne modes (in manual the pilot flies; `pilot` has the RC link's).
+        if self.mode.airborne() && self.mode != FlightMode::Manual {
             let since = self.last_fix_us.unwrap_or(0).max(self.airborne_since_us);
             let fix_age = now.saturating_sub(since) as f32 * 1e-6;
             // The take-off climbs on the IMU (the line is often out of view from the pad); vision is required
@@ -779,7 +806,7 @@ impl ControlCore {
         // it has (a disturbed compass must not turn it away from the line); when vision takes over, or resets
         // the heading, the reference starts from the new estimate and turns to the mission's yaw at a bounded
         // rate.
-        if self.mode.airborne() {
+        if self.mode.airborne() && self.mode != FlightMode::Manual {
             let frame = (self.estimator.yaw_from_vision(), self.estimator.counters().yaw_resets);
             if !frame.0 || frame != self.yaw_frame {
                 self.yaw_d = est.attitude.yaw;
@@ -910,12 +937,21 @@ impl ControlCore {
                 sp.position_m.y = est.position_m.y;
                 sp.velocity_m_s.y = retreat_speed;
             }
+            FlightMode::Manual => {
+                let off_pad = est.position_m.z > traj.ground_height_m + TAKEOFF_AIRBORNE_M;
+                let idle = self.manual_idle(off_pad);
+                sp = self.manual_setpoint(&est, dt, idle);
+            }
             _ => {}
         }
 
         // Every reference moves at a bounded rate from where it was (a failsafe restarts it where the vehicle
         // is): no step anywhere.
-        if matches!(self.mode, FlightMode::Disarmed | FlightMode::Armed | FlightMode::Emergency) {
+        if matches!(
+            self.mode,
+            FlightMode::Disarmed | FlightMode::Armed | FlightMode::Emergency | FlightMode::Manual
+        ) {
+            // On the ground nothing moves; in manual the sticks' references are rates already.
             self.limiter.restart(est.position_m);
         } else {
             let h = traj.speed_m_s.max(traj.takeoff_speed_m_s) * SETPOINT_RATE_MARGIN;
@@ -940,8 +976,16 @@ impl ControlCore {
         let off_pad = est.position_m.z > traj.ground_height_m + TAKEOFF_AIRBORNE_M;
         let integrate =
             matches!(self.mode, FlightMode::Hover | FlightMode::Tracking | FlightMode::VisionHold)
-                || (self.mode == FlightMode::TakeOff && off_pad);
-        let (mut demand, law) = self.controller.update(&est, &sp, dt, integrate, self.motors);
+                || (matches!(self.mode, FlightMode::TakeOff | FlightMode::Manual) && off_pad);
+        let horizontal = match self.mode {
+            FlightMode::Manual => {
+                let [roll, pitch] = self.manual_tilt();
+                Horizontal::Attitude { roll, pitch }
+            }
+            _ => Horizontal::Position,
+        };
+        let (mut demand, law) =
+            self.controller.update_with(&est, &sp, horizontal, dt, integrate, self.motors);
         // The vertical thrust that holds the vehicle, learned while vision holds the height (the altitude
         // integral has found the real mass and thrust by then): without vision the height is dead-reckoned and
         // may drift either way by tens of centimetres in seconds, so a landing without vision may never ask for
@@ -1008,9 +1052,12 @@ impl ControlCore {
         }
         self.last_thrust_n = if self.mode.airborne() { demand.thrust_n } else { 0.0 };
         let mut mix = MixerOutput::default();
+        let manual_idle = self.manual_idle(off_pad);
         self.motors = match self.mode {
             FlightMode::Disarmed | FlightMode::Emergency => [0.0; 4],
             FlightMode::Armed => [self.params.vehicle.motor_speed_min_rad_s; 4],
+            // Manual on the ground with the throttle not asking to climb: idle, as armed.
+            FlightMode::Manual if manual_idle => [self.params.vehicle.motor_speed_min_rad_s; 4],
             _ => {
                 mix = mixer::mix(&demand, &self.params.vehicle);
                 mix.speeds_rad_s
@@ -1035,3 +1082,7 @@ impl ControlCore {
 
 #[cfg(test)]
 mod failsafe_tests;
+#[cfg(test)]
+mod pilot_tests;
+#[cfg(test)]
+mod test_harness;

@@ -93,7 +93,9 @@ pub fn mix(d: &Demand, v: &VehicleParams) -> MixerOutput {
         out.thrust_limited = true;
     }
     for i in 0..4 {
-        let s = (mean + c[i]).clamp(s_min, s_max);
+        // `clamp_finite`, not `f32::clamp`: no panic path (its assert on the bounds, with the float formatting
+        // it brings into the firmware), and a NaN gives the lower bound.
+        let s = geometry::clamp_finite(mean + c[i], s_min, s_max);
         out.speeds_rad_s[i] = libm::sqrtf(s);
     }
     out

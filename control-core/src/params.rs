@@ -620,6 +620,51 @@ impl DownlinkParams {
 }
 
 params_struct! {
+    /// The pilot's RC transmitter (`crate::pilot`; docs/architecture.md, "The pilot's transmitter").
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
+    #[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
+    #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+    pub struct RcParams in ["rc"] {
+        /// Whether the vehicle needs the RC link: arming waits for it, and losing it lands (after
+        /// `loss_hold_s`) in every mode, and disarms on the ground. Without, only manual flight needs it.
+        required: bool = false, { any } "";
+        /// The receiver's channels (0-based) of the roll, pitch, throttle and yaw sticks and of the arm, mode
+        /// and kill switches: AETR with arm, mode and kill on channels 5, 6 and 7 (counted from 1), as
+        /// ExpressLRS and Betaflight number them. Each different.
+        channel_map: [u8; 7] = [0, 1, 2, 3, 4, 5, 6], { >= 0, <= 15 } "";
+        /// Manual mode: the tilt at full stick (rad); at most `gains.max_tilt_rad`.
+        max_tilt_rad: f32 = 0.25, { > 0.0, < 1.0 } "rad";
+        /// Manual mode: the climb or descent rate with the throttle stick at an end (m/s); the centre holds
+        /// the height.
+        max_climb_m_s: f32 = 0.5, { > 0.0, <= 3.0 } "m/s";
+        /// Manual mode: the yaw rate at full stick (rad/s).
+        max_yaw_rate_rad_s: f32 = 1.0, { > 0.0, <= 6.0 } "rad/s";
+        /// Stick travel around the centre that counts as centred, as a fraction of the half travel.
+        deadband: f32 = 0.05, { >= 0.0, <= 0.3 } "";
+        /// RC lost where it matters: hold level at the height this long, then land (s).
+        loss_hold_s: f32 = 1.0, { >= 0.0, <= 30.0 } "s";
+    }
+}
+
+impl RcParams {
+    fn validate(&self, gains: &ControlGains) -> Result<(), ParamError> {
+        self.check_declared(0)?;
+        let c = self.channel_map;
+        check(
+            c.iter().enumerate().all(|(i, a)| c[i + 1..].iter().all(|b| a != b)),
+            "rc.channel_map",
+            "each function needs a channel of its own",
+        )?;
+        check(
+            self.max_tilt_rad <= gains.max_tilt_rad,
+            "rc.max_tilt_rad",
+            "must not exceed gains.max_tilt_rad",
+        )
+    }
+}
+
+params_struct! {
     /// Everything the flight code needs.
     #[derive(Clone, Copy, Debug, PartialEq)]
     #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
@@ -637,6 +682,8 @@ params_struct! {
         failsafe: FailsafeParams = FailsafeParams::default(), { section } "";
         /// The downlink.
         downlink: DownlinkParams = DownlinkParams::default(), { section } "";
+        /// The pilot's transmitter.
+        rc: RcParams = RcParams::default(), { section } "";
         /// Where the vehicle waits on the ground before take-off, world frame (m): the estimator's position
         /// until the first vision fix.
         home_m: [f32; 3] = [0.0; 3], { >= -1000.0, <= 1000.0 } "m";
@@ -658,6 +705,7 @@ impl FlightParams {
         self.trajectory.validate()?;
         self.failsafe.validate()?;
         self.downlink.validate()?;
+        self.rc.validate(&self.gains)?;
         self.check_declared(0)
     }
 }
@@ -829,7 +877,7 @@ impl FlightParams {
 
 /// Every declared parameter (sections left out), section by section in the order of the tree.
 pub fn declared() -> impl Iterator<Item = &'static crate::declare::ParamSpec> {
-    let tables: [&'static [crate::declare::ParamSpec]; 12] = [
+    let tables: [&'static [crate::declare::ParamSpec]; 13] = [
         VehicleParams::SPECS[0],
         AltitudeGains::SPECS[0],
         YawGains::SPECS[0],
@@ -841,6 +889,7 @@ pub fn declared() -> impl Iterator<Item = &'static crate::declare::ParamSpec> {
         TrajectoryParams::SPECS[0],
         FailsafeParams::SPECS[0],
         DownlinkParams::SPECS[0],
+        RcParams::SPECS[0],
         FlightParams::SPECS[0],
     ];
     tables.into_iter().flatten().filter(|s| !s.section)

@@ -42,6 +42,10 @@ static TX_QUEUE: Mutex<RefCell<Deque<u8, 2048>>> = Mutex::new(RefCell::new(Deque
 type UartHalves = (Tx<USART1>, Rx<USART1>);
 static UART: Mutex<RefCell<Option<UartHalves>>> = Mutex::new(RefCell::new(None));
 static RX_OVERFLOW: AtomicU32 = AtomicU32::new(0);
+/// The RC receiver's bytes (CRSF at 420 000 baud: a 26-byte RC frame every 2-20 ms), and those that found the
+/// queue full.
+static RC_QUEUE: Mutex<RefCell<Deque<u8, 256>>> = Mutex::new(RefCell::new(Deque::new()));
+static RC_OVERFLOW: AtomicU32 = AtomicU32::new(0);
 
 #[interrupt]
 fn USART1() {
@@ -287,6 +291,16 @@ impl Board {
         cortex_m::interrupt::free(|cs| RX_QUEUE.borrow(cs).borrow_mut().pop_front())
     }
 
+    /// One byte from the RC receiver, if any arrived.
+    pub fn rc_byte(&mut self) -> Option<u8> {
+        cortex_m::interrupt::free(|cs| RC_QUEUE.borrow(cs).borrow_mut().pop_front())
+    }
+
+    /// RC bytes lost because the queue was full.
+    pub fn rc_overflow(&self) -> u32 {
+        RC_OVERFLOW.load(Ordering::Relaxed)
+    }
+
     /// Free space in the radio's transmit queue (bytes).
     pub fn tx_free(&self) -> usize {
         cortex_m::interrupt::free(|cs| {
@@ -328,6 +342,39 @@ impl Board {
             }
             bytes.len()
         })
+    }
+}
+
+/// The RC receiver's UART (board variant: USART3), owned by its interrupt once started.
+#[cfg(not(feature = "qemu"))]
+static RC_UART: Mutex<RefCell<Option<Rx<pac::USART3>>>> = Mutex::new(RefCell::new(None));
+
+#[cfg(not(feature = "qemu"))]
+#[interrupt]
+fn USART3() {
+    cortex_m::interrupt::free(|cs| {
+        let mut uart = RC_UART.borrow(cs).borrow_mut();
+        let Some(rx) = uart.as_mut() else { return };
+        while let Ok(b) = embedded_hal_nb::serial::Read::read(rx) {
+            if RC_QUEUE.borrow(cs).borrow_mut().push_back(b).is_err() {
+                RC_OVERFLOW.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    });
+}
+
+/// Starts the RC receiver's UART: its bytes go into [`RC_QUEUE`] from its interrupt, at the radio's priority.
+#[cfg(not(feature = "qemu"))]
+fn start_rc_uart(serial: Serial<pac::USART3>, nvic: &mut pac::NVIC) {
+    let (_tx, mut rx) = serial.split();
+    rx.listen();
+    cortex_m::interrupt::free(|cs| RC_UART.borrow(cs).replace(Some(rx)));
+    pac::NVIC::unpend(pac::Interrupt::USART3);
+    #[allow(unsafe_code)]
+    // SAFETY: the handler only touches state behind critical sections, set up just above.
+    unsafe {
+        nvic.set_priority(pac::Interrupt::USART3, UART_PRIORITY);
+        pac::NVIC::unmask(pac::Interrupt::USART3);
     }
 }
 
@@ -416,6 +463,16 @@ mod variant {
                 halt("uart")
             };
             start_uart(serial, &mut cp.NVIC);
+            // The RC receiver (CRSF: ExpressLRS, TBS Crossfire) on USART3, PB10 TX, PB11 RX.
+            match Serial::new(
+                dp.USART3,
+                (gpiob.pb10, gpiob.pb11),
+                SerialConfig::default().baudrate(drivers::crsf::BAUD.bps()),
+                &mut rcc,
+            ) {
+                Ok(rc) => start_rc_uart(rc, &mut cp.NVIC),
+                Err(_) => defmt::warn!("the RC receiver's UART did not start: no RC"),
+            }
             cp.DCB.enable_trace();
             cp.DWT.enable_cycle_counter();
             start_tick(cp.SYST, &mut cp.SCB, rcc.clocks.sysclk().raw() / 1000);
@@ -493,7 +550,7 @@ mod variant {
         pub fn after_step(&mut self, steps: u32, s: &RunStats) {
             if steps.is_multiple_of(2500) {
                 defmt::info!(
-                    "steps {} mode {} step max {} cycles mean {} tick latency max {} cycles solves {} link ok {} errors {} radio {} auth ok {} refused {} arm refused {} rng errors {}",
+                    "steps {} mode {} step max {} cycles mean {} tick latency max {} cycles solves {} link ok {} errors {} radio {} auth ok {} refused {} arm refused {} rng errors {} rc bytes lost {}",
                     s.steps,
                     s.mode,
                     s.max_cost,
@@ -506,7 +563,8 @@ mod variant {
                     s.auth.auth.ok,
                     s.auth.auth.refused(),
                     s.auth.arm_refused,
-                    self.rng_errors
+                    self.rng_errors,
+                    self.rc_overflow()
                 );
             }
         }
@@ -735,7 +793,7 @@ mod variant {
                 instructions(crate::background::SOLVE_CYCLES_MAX.load(Ordering::Relaxed) as u64),
             );
             cortex_m_semihosting::hprintln!(
-                "loop ran: steps={} ticks={} imu_errors={} motor_errors={} imu_dropped={} step_cycles_max={} step_cycles_mean={} background_cycles_max={} background_cycles_total={} mode={:?} link_ok={} link_errors={} radio=\"{}\" auth_ok={} auth_refused={} arm_refused={} link_cycles_max={} rng_errors={}",
+                "loop ran: steps={} ticks={} imu_errors={} motor_errors={} imu_dropped={} step_cycles_max={} step_cycles_mean={} background_cycles_max={} background_cycles_total={} mode={:?} link_ok={} link_errors={} radio=\"{}\" auth_ok={} auth_refused={} arm_refused={} link_cycles_max={} rng_errors={} rc_overflow={}",
                 s.steps,
                 TICKS.load(Ordering::Acquire),
                 s.imu_errors,
@@ -753,7 +811,8 @@ mod variant {
                 s.auth.auth.refused(),
                 s.auth.arm_refused,
                 s.max_link,
-                self.rng_errors
+                self.rng_errors,
+                self.rc_overflow()
             );
             cortex_m_semihosting::debug::exit(cortex_m_semihosting::debug::EXIT_SUCCESS);
             loop {

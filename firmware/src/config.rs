@@ -50,7 +50,7 @@ pub fn take_piece(
         }
         Ok(cfg) => {
             on_new(&cfg);
-            *stack = FlightStack::new_checked(cfg);
+            rebuild(stack, cfg);
             let saved = match store.as_mut().map(|s| s.save(&cfg)) {
                 Some(Ok(seq)) => Some(seq),
                 Some(Err(e)) => {
@@ -63,6 +63,14 @@ pub fn take_piece(
         }
     };
     Some(ConfigAck { crc32, outcome })
+}
+
+/// The flight stack rebuilt from `cfg`. Not inlined: the new stack (21 KB) is built on the stack and moved into
+/// place, and that space is needed only while this runs (on the ground, after an upload), not in the frame of
+/// every control step that might call it.
+#[inline(never)]
+fn rebuild(stack: &mut FlightStack, cfg: FlightConfig) {
+    *stack = FlightStack::new_checked(cfg);
 }
 
 #[cfg(not(feature = "qemu"))]

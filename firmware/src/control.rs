@@ -39,6 +39,8 @@ pub struct Flight {
     /// A configuration upload being put together, and the flash store it goes to.
     upload: ConfigUpload,
     store: Option<ParamStore<crate::config::Flash>>,
+    /// The pilot's RC receiver (`flight_core::rc`): the RC UART's bytes in, the pilot's input out.
+    rc: flight_core::rc::RcReceiver,
 }
 
 impl Flight {
@@ -60,6 +62,7 @@ impl Flight {
             stats: RunStats::default(),
             upload: ConfigUpload::new(),
             store,
+            rc: flight_core::rc::RcReceiver::new(cfg.control.rc.channel_map),
         }
     }
 
@@ -99,10 +102,11 @@ impl Flight {
                 // A configuration upload's piece: put together here, applied and stored when whole
                 // (docs/firmware.md, "Parameters in flash"); the flight stack never sees it.
                 Some(Incoming::Message(Uplink::Config(c))) => {
-                    let motor_max = &mut self.motor_max;
+                    let (motor_max, rc) = (&mut self.motor_max, &mut self.rc);
                     let ack =
                         crate::config::take_piece(&mut self.upload, &c, self.stack, &mut self.store, |cfg| {
                             *motor_max = cfg.control.vehicle.motor_speed_max_rad_s;
+                            rc.set_channel_map(cfg.control.rc.channel_map);
                             background::set_vision(cfg.vision);
                         });
                     if let Some(ack) = ack
@@ -132,6 +136,11 @@ impl Flight {
             }
         }
         stats.record_link(board::cycles_since(t_link));
+        // The pilot's transmitter: the RC receiver's bytes since the last step.
+        while let Some(b) = board.rc_byte() {
+            self.rc.push(b, time_us);
+        }
+        let pilot = self.rc.pilot(time_us);
         // The frames the background work solved since the previous step, for this step to fuse.
         background::deliver_solved(self.stack);
         let t0 = board::cycles();
@@ -142,6 +151,7 @@ impl Flight {
             baro_m: None,
             uplink: &uplink,
             landed: None,
+            pilot,
         });
         let step_cost = board::cycles_since(t0);
         stats.record_step(step_cost);

@@ -43,6 +43,8 @@ pub fn run(
     let (mut background_cycles, mut background_solves) = (0u32, 0u8);
     let mut rx = [0u8; 512];
     let mut upload = ConfigUpload::new();
+    // The pilot's transmitter for the next step (the simulator's receiver's), when there is one.
+    let mut pilot = None;
     send(&mut io, &FcToFil::Hello { wire_version: WIRE_VERSION }, &mut stats);
     loop {
         let n = io.read(&mut rx);
@@ -72,6 +74,7 @@ pub fn run(
                         baro_m: s.baro_m,
                         uplink: &uplink,
                         landed: s.landed,
+                        pilot: pilot.take(),
                     });
                     let cost = board::cycles_since(t0);
                     uplink.clear();
@@ -103,6 +106,7 @@ pub fn run(
                     background_cycles = board::cycles_since(t1);
                     stats.record_background(background_cycles);
                 }
+                Some(Ok(FilToFc::Pilot(p))) => pilot = Some(p),
                 Some(Ok(FilToFc::AuthCost)) => {
                     let cost = flight_core::fil::measure_auth_cost(board::cycles);
                     send(&mut io, &FcToFil::AuthCost(cost), &mut stats);

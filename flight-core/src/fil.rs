@@ -45,6 +45,8 @@ pub enum FilToFc {
     Stop,
     /// Measure the keyed link's cost per frame ([`measure_auth_cost`]) and answer [`FcToFil::AuthCost`].
     AuthCost,
+    /// The pilot's transmitter for the next step (sent before its `Step` when a receiver has been heard).
+    Pilot(control_core::pilot::PilotInput),
 }
 
 /// Flight computer to simulator.
@@ -232,6 +234,7 @@ mod tests {
             baro_m: None,
             uplink: &[],
             landed: None,
+            pilot: None,
         });
         let mut report = out.report();
         // Fill the optional parts, as the largest step reply would have them.

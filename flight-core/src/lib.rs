@@ -33,6 +33,7 @@ pub mod fil;
 pub mod flow;
 pub mod param_store;
 pub mod radio;
+pub mod rc;
 pub mod telemetry;
 
 use control_core::estimator::{BodyVelocity, ImuSample, PositionFix};
@@ -108,6 +109,8 @@ pub struct StepInput<'a> {
     pub uplink: &'a [Uplink],
     /// An external land detector's verdict (the recorded vehicle's, in imported logs); `None` in flight.
     pub landed: Option<bool>,
+    /// The pilot's transmitter, when a receiver has been heard (`control_core::pilot`).
+    pub pilot: Option<control_core::pilot::PilotInput>,
 }
 
 /// The outcome of this step's vision frame, if one arrived.
@@ -530,6 +533,7 @@ impl FlightStack {
             command,
             link_message: !inp.uplink.is_empty(),
             landed: inp.landed,
+            pilot: inp.pilot,
         });
         StepOutput {
             control,
@@ -565,7 +569,15 @@ mod tests {
         let mut t = 0;
         let mut step = |s: &mut FlightStack, uplink: &[Uplink]| {
             t += 2000;
-            s.step(&StepInput { time_us: t, imu: &imu(t), mag: None, baro_m: None, uplink, landed: None })
+            s.step(&StepInput {
+                time_us: t,
+                imu: &imu(t),
+                mag: None,
+                baro_m: None,
+                uplink,
+                landed: None,
+                pilot: None,
+            })
         };
         for _ in 0..400 {
             step(&mut s, &[Uplink::Heartbeat]);
@@ -613,6 +625,7 @@ mod tests {
                 baro_m: None,
                 uplink: &[Uplink::Heartbeat],
                 landed: None,
+                pilot: None,
             });
         }
         t += 2000;
@@ -623,6 +636,7 @@ mod tests {
             baro_m: None,
             uplink: &[Uplink::ParamSet { id: ParamId::TrajectorySpeed, value: 0.3 }],
             landed: None,
+            pilot: None,
         });
         let r = out.param_reply.unwrap();
         assert_eq!((r.id, r.value, r.outcome), (ParamId::TrajectorySpeed, 0.3, ParamOutcome::Ok));
@@ -636,6 +650,7 @@ mod tests {
             baro_m: None,
             uplink: &[Uplink::TimeSync { station_time_us: 77_000_123 }],
             landed: None,
+            pilot: None,
         });
         assert_eq!(out.time_sync, Some(77_000_123));
         assert_eq!(out.report().time_sync, Some(77_000_123));
@@ -661,6 +676,7 @@ mod tests {
             baro_m: None,
             uplink: &[Uplink::ParamSet { id: ParamId::TelemetryEvery, value: 50.0 }],
             landed: None,
+            pilot: None,
         });
         assert_eq!(out.param_reply.unwrap().outcome, ParamOutcome::Ok);
         assert_eq!(out.telemetry_every, 50);
@@ -686,6 +702,7 @@ mod tests {
             baro_m: None,
             uplink: &[Uplink::Command(Command::Arm)],
             landed: None,
+            pilot: None,
         });
         assert_eq!(out.control.status.mode, FlightMode::Armed);
         // A frame without the line is counted, not solved.
@@ -698,6 +715,7 @@ mod tests {
             baro_m: None,
             uplink: &[Uplink::Vision(m)],
             landed: None,
+            pilot: None,
         });
         assert_eq!(out.frame, Some(FrameOutcome::NoTarget));
         assert_eq!(out.vision.no_target, 1);
@@ -738,6 +756,7 @@ mod tests {
                 baro_m: None,
                 uplink: &[],
                 landed: None,
+                pilot: None,
             });
         }
         // The step queues the frame; nothing is solved within it.
@@ -750,6 +769,7 @@ mod tests {
             baro_m: None,
             uplink: &[Uplink::Vision(m)],
             landed: None,
+            pilot: None,
         });
         assert_eq!((out.frame, out.vision.solved, out.vision.frames), (None, 0, 1));
         assert_eq!(s.pending_solves(), 1);
@@ -765,6 +785,7 @@ mod tests {
             baro_m: None,
             uplink: &[],
             landed: None,
+            pilot: None,
         });
         let Some(FrameOutcome::Solved(p)) = out.frame else { panic!("solved: {:?}", out.frame) };
         let want = VisionConfig::default().target.center() - Vec3::new(0.0, -1.2, 0.0);
@@ -783,6 +804,7 @@ mod tests {
             baro_m: None,
             uplink: &uplink,
             landed: None,
+            pilot: None,
         });
         assert_eq!((out.vision.frames, out.vision.dropped), (4, 1));
         assert_eq!(s.solve_pending(), 2);
@@ -794,6 +816,7 @@ mod tests {
             baro_m: None,
             uplink: &[],
             landed: None,
+            pilot: None,
         });
         assert_eq!(out.vision.solved, 3);
     }
@@ -819,6 +842,7 @@ mod tests {
                 baro_m: None,
                 uplink: &frames,
                 landed: None,
+                pilot: None,
             };
             assert_eq!(a.step(&inp), b.step(&inp), "step {k}");
             let n = a.solve_pending();
@@ -837,7 +861,8 @@ mod tests {
                 mag: None,
                 baro_m: None,
                 uplink: &[],
-                landed: None
+                landed: None,
+                pilot: None
             })
             .vision
             .solved
@@ -862,6 +887,7 @@ mod tests {
                 baro_m: None,
                 uplink: &[],
                 landed: None,
+                pilot: None,
             });
         }
         let m = frame_seen(t - 30_000, 1);
@@ -873,6 +899,7 @@ mod tests {
             baro_m: None,
             uplink: &[Uplink::Vision(m)],
             landed: None,
+            pilot: None,
         });
         assert_eq!(s.pending_solves(), 1);
         s.solve_pending();
@@ -888,6 +915,7 @@ mod tests {
             baro_m: None,
             uplink: &[Uplink::Vision(again)],
             landed: None,
+            pilot: None,
         });
         assert_eq!(out.frame, Some(FrameOutcome::Frozen));
         assert_eq!((out.vision.frozen, out.vision.frames), (1, 2));
@@ -902,6 +930,7 @@ mod tests {
             baro_m: None,
             uplink: &[Uplink::Vision(fresh)],
             landed: None,
+            pilot: None,
         });
         assert_eq!(s.pending_solves(), 1);
     }

@@ -48,7 +48,9 @@ pub const SCHEMA_HASH_FORMAT_7: &str = "6da2960026f0b4d8";
 /// repeating floor (`NoFlowReason::RepeatingTexture`, an appended variant): such logs are read as they are.
 pub const SCHEMA_HASH_FORMAT_8: &str = "586ae63c49f24cfc";
 /// The record schema of format 9, whose records are those of format 10 without the configuration upload's
-/// messages (`Uplink::Config`, `Downlink::ConfigAck`, appended variants): such logs are read as they are.
+/// messages (`Uplink::Config`, `Downlink::ConfigAck`), the pilot's transmitter (`LogRecord::Pilot`, the mode
+/// `FlightMode::Manual`, the failsafes `RcLost` and `Killed`, the refusals `KillSwitch`, `ArmSwitchOff` and
+/// `NoRc`), all appended variants: such logs are read as they are.
 pub const SCHEMA_HASH_FORMAT_9: &str = "e1de2b7ec4b68d9c";
 
 /// The record schema a log of format `version` was written in, for the versions this reader reads.
@@ -108,6 +110,9 @@ pub enum LogRecord {
     /// What a ground station sent and received over the radio, on its own clock (`sim-host station`; format
     /// 6).
     Station(StationEvent),
+    /// The pilot's transmitter as the flight stack got it for the next step, when the vehicle has an RC
+    /// receiver and has heard it (format 10).
+    Pilot(control_core::pilot::PilotInput),
 }
 
 /// A ground station's record of the radio: each message with the station's time (us since the Unix epoch),
@@ -178,6 +183,7 @@ impl LogRecord {
             LogRecord::Reference(_) => "reference",
             LogRecord::End { .. } => "end",
             LogRecord::Station(_) => "station",
+            LogRecord::Pilot(_) => "pilot",
         }
     }
 }

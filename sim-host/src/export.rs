@@ -247,6 +247,14 @@ pub(crate) fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
             };
             out.push(Msg { topic, schema, time_us, body: timed(time_us, value) });
         }
+        // The pilot's transmitter as the flight stack got it for the next step, at the time of the step before
+        // (the record precedes the step it goes to).
+        LogRecord::Pilot(p) => out.push(Msg {
+            topic: "/pilot",
+            schema: "wlq.PilotInput",
+            time_us: step_us,
+            body: timed(step_us, v(p)),
+        }),
         // Frames have topics of their own; the end record is the file's, not the flight's.
         LogRecord::Frame(_) | LogRecord::End { .. } => {}
     }

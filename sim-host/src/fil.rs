@@ -346,7 +346,8 @@ impl QemuFc {
         // One write for the whole period: the radio messages, then the sensors.
         let mut out = Vec::with_capacity(MAX_FRAME * (input.uplink.len() + 1));
         let mut buf = [0u8; MAX_FRAME];
-        let msgs = input.uplink.iter().map(|m| FilToFc::Link(*m));
+        // The radio messages, the pilot's transmitter when there is one, then the sensors.
+        let msgs = input.uplink.iter().map(|m| FilToFc::Link(*m)).chain(input.pilot.map(FilToFc::Pilot));
         for msg in msgs.chain([FilToFc::Step(SensorStep {
             time_us: input.time_us,
             imu,

@@ -30,6 +30,7 @@ pub mod sensors;
 pub mod sil;
 pub mod station;
 pub mod sweep;
+pub mod transmitter;
 pub mod virtual_vehicle;
 pub mod vision;
 pub mod wind;

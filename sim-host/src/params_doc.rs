@@ -162,7 +162,7 @@ mod tests {
         let mut checked = 0;
         for spec in declared() {
             let Some(r) = spec.range else { continue };
-            let integer = spec.ty == "u8";
+            let integer = spec.ty == "u8" || spec.ty.starts_with("[u8;");
             let step = |b: f32| if integer { 1.0 } else { (b.abs() * 1e-3).max(1e-9) as f64 };
             let mut outside = vec![if r.lo_open { r.lo as f64 } else { r.lo as f64 - step(r.lo) }];
             if r.hi.is_finite() {

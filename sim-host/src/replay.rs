@@ -191,6 +191,8 @@ pub fn replay_stream(
     });
     let mut schedule = DownlinkSchedule::new();
     let mut uplink: Vec<Uplink> = Vec::new();
+    // The pilot's transmitter for the next step, when the log holds it (format 10).
+    let mut pilot = None;
     let mut last: Option<(u64, StepReport)> = None;
     let mut downlinks: VecDeque<Downlink> = VecDeque::new();
     let mut step_time = 0u64;
@@ -249,6 +251,7 @@ pub fn replay_stream(
                     baro_m: step.baro_m,
                     uplink: &uplink,
                     landed: step.landed,
+                    pilot: pilot.take(),
                 });
                 stack.solve_pending();
                 if let Some(sc) = score.as_mut() {
@@ -359,6 +362,11 @@ pub fn replay_stream(
                 write(&LogRecord::Reference(r))?;
             }
             r @ LogRecord::Truth { .. } => write(&r)?,
+            // The pilot's transmitter for the next step.
+            LogRecord::Pilot(p) => {
+                pilot = Some(p);
+                write(&LogRecord::Pilot(p))?;
+            }
             // A ground station's record of the radio: nothing to re-run, kept in a replayed log.
             LogRecord::Station(e) => {
                 s.station_records += 1;

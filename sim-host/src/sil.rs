@@ -295,6 +295,8 @@ pub struct Sil {
     tracking_since: Option<f64>,
     /// The ground station's operator (the mission's script).
     operator: ground_station::operator::Operator,
+    /// The simulated pilot's transmitter and the vehicle's receiver, when the scenario has them.
+    transmitter: Option<crate::transmitter::Transmitter>,
     /// Downlink messages on their way to the ground station, with their arrival times.
     downlink_queue: VecDeque<(u64, protocol::Downlink)>,
     /// The last telemetry the ground station received.
@@ -515,6 +517,7 @@ impl Sil {
                 land_when_done: scenario.mission.land_when_done,
                 sweep: true,
             }),
+            transmitter: crate::transmitter::Transmitter::new(&scenario.transmitter, scenario.rc.channel_map),
             downlink_queue: VecDeque::new(),
             station_telemetry: None,
             was_airborne: false,
@@ -976,6 +979,9 @@ impl Sil {
         }
         let step_mag = self.pending_mag.take();
         let step_baro = self.pending_baro.take();
+        let heard = self.fault_active(|k| matches!(k, FaultKind::RcLoss)).is_none();
+        let t_us = self.t_us;
+        let pilot = self.transmitter.as_mut().and_then(|tx| tx.step(t_us, heard));
         let input = StepInput {
             time_us: self.t_us,
             imu: &self.pending_imu,
@@ -983,6 +989,7 @@ impl Sil {
             baro_m: step_baro,
             uplink: &delivered,
             landed: None,
+            pilot,
         };
         let mut downlinks: Vec<protocol::Downlink> = Vec::new();
         let out = match self.fc.as_mut() {
@@ -1050,6 +1057,7 @@ impl Sil {
                 landed: None,
             };
             let mut records: Vec<LogRecord> = delivered.iter().map(|m| LogRecord::Link(*m)).collect();
+            records.extend(pilot.map(LogRecord::Pilot));
             records.push(LogRecord::Step(step));
             records.push(LogRecord::Report(out));
             records.extend(downlinks.iter().map(|d| LogRecord::Downlink(*d)));

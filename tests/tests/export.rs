@@ -103,6 +103,7 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
                 add("/camera/forward/annotations", 1);
             }
             LogRecord::Frame(_) => add("/camera/down/image", 1),
+            LogRecord::Pilot(_) => add("/pilot", 1),
             // The file's end record has no topic; a simulated flight's log has no station records (the
             // station's export is checked by sim-host/tests/station_e2e.rs).
             LogRecord::End { .. } => {}

@@ -227,3 +227,41 @@ fn a_scenario_with_other_gains_flies_in_qemu_after_the_upload() {
     assert!(fw.passes_done >= 1, "{fw:?}");
     eprintln!("other gains in QEMU: {} steps bit for bit, rms {:?}", fw_cmds.len(), fw.rms_error_m);
 }
+
+/// The pilot's transmitter through the firmware: the mission, the pilot's manual take-over with a stick input,
+/// and the landing by the mode switch, bit for bit with the flight code in this process.
+#[test]
+fn the_pilot_s_transmitter_flies_the_firmware_as_it_flies_the_simulator() {
+    use sim_host::transmitter::{TxEvent, TxMode};
+    if !available() {
+        return;
+    }
+    let _one = QEMU_RUNS.lock().unwrap_or_else(|e| e.into_inner());
+    let mut s = Scenario::paper();
+    s.transmitter.enabled = true;
+    let at = |at_s: f64| TxEvent { at_s, ..Default::default() };
+    s.transmitter.script = vec![
+        TxEvent { mode: Some(TxMode::Auto), ..at(0.0) },
+        TxEvent { arm: Some(true), ..at(0.8) },
+        TxEvent { mode: Some(TxMode::Manual), ..at(12.0) },
+        TxEvent { roll: Some(-0.5), throttle: Some(0.7), ..at(13.0) },
+        TxEvent { roll: Some(0.0), throttle: Some(0.5), ..at(14.0) },
+        TxEvent { mode: Some(TxMode::Land), ..at(16.0) },
+    ];
+    s.validate().unwrap();
+    let fly = |fc: &FcChoice| {
+        let mut sil = Sil::with_fc(&s, 2, CameraMode::Analytic, fc).unwrap();
+        sil.log_motor_commands();
+        let st = sil.run(25.0, |_| {});
+        (st, sil.motor_commands().unwrap().to_vec())
+    };
+    let (host, host_cmds) = fly(&FcChoice::Sil);
+    let (fw, fw_cmds) = fly(&FcChoice::Qemu(QemuOptions::new(elf())));
+    assert!(fw.fc_error.is_none(), "{:?}", fw.fc_error);
+    assert!(host.modes.iter().any(|(_, m)| m == "Manual") && host.landed, "{:?}", host.modes);
+    assert_eq!(host_cmds.len(), fw_cmds.len());
+    if let Some(k) = host_cmds.iter().zip(&fw_cmds).position(|(a, b)| a != b) {
+        panic!("motor commands differ first at control step {k}");
+    }
+    assert_eq!(host.modes, fw.modes);
+}

@@ -679,7 +679,10 @@ impl Estimator {
         self.bg += v3(IBG);
         let lim = self.params.accel_bias_limit_m_s2;
         let ba = self.ba + v3(IBA);
-        self.ba = Vec3::new(ba.x.clamp(-lim, lim), ba.y.clamp(-lim, lim), ba.z.clamp(-lim, lim));
+        // Not `f32::clamp`: no panic path (its assert on the bounds, with the float formatting it brings into
+        // the firmware); a NaN stays NaN, for the health check to see.
+        let c = |v: f32| if v.is_nan() { v } else { geometry::clamp_finite(v, -lim, lim) };
+        self.ba = Vec3::new(c(ba.x), c(ba.y), c(ba.z));
         self.w += Vec3::new(dx[IW], dx[IW + 1], 0.0);
     }
 

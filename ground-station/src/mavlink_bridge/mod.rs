@@ -79,6 +79,7 @@ pub fn custom_mode(m: FlightMode) -> u32 {
         FlightMode::VisionHold => 5,
         FlightMode::Landing => 6,
         FlightMode::Emergency => 7,
+        FlightMode::Manual => 8,
     }
 }
 
@@ -170,8 +171,14 @@ impl Bridge {
         let armed = mode.is_some_and(|m| m != FlightMode::Disarmed);
         let mut base = mav::MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED;
         if armed {
-            base |=
-                mav::MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED | mav::MavModeFlag::MAV_MODE_FLAG_GUIDED_ENABLED;
+            base |= mav::MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED;
+            // The pilot's manual mode takes the sticks, not the station's guidance.
+            base |= if mode == Some(FlightMode::Manual) {
+                mav::MavModeFlag::MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+                    | mav::MavModeFlag::MAV_MODE_FLAG_STABILIZE_ENABLED
+            } else {
+                mav::MavModeFlag::MAV_MODE_FLAG_GUIDED_ENABLED
+            };
         }
         let status = match (mode, self.telemetry.and_then(|t| t.failsafe)) {
             (None, _) => mav::MavState::MAV_STATE_BOOT,

@@ -2,7 +2,8 @@
 //! every number of the scenario against its declaration (the error names the field and states the range), and
 //! the command-line options that override a scenario value (`render --blur`, `--noise`, `--light-gain`,
 //! `--exposure-time`, `fly --duration`) go through the same validation, so one quantity has one limit.
-//! The flight code's parameters (`[vehicle]`, `[gains]`, `[estimator]`, `[trajectory]`, `[failsafe]`, `[downlink]`) are
+//! The flight code's parameters (`[vehicle]`, `[gains]`, `[estimator]`, `[trajectory]`, `[failsafe]`, `[downlink]`,
+//! `[rc]`) are
 //! declared in control-core (`control_core::declare`, docs/parameters.md); these are the simulator's own.
 //! `sim-host params` prints both tables.
 //!
@@ -225,6 +226,13 @@ limits! {
     FAULT_DEGRADED_MOTOR = "faults.motor_degradation.motor" closed [1, 4] "";
     FAULT_DEGRADED_THRUST = "faults.motor_degradation.thrust_scale" closed [0, 1] "";
     FAULT_LOST_MOTOR = "faults.motor_loss.motor" closed [1, 4] "";
+
+    TRANSMITTER_FRAME_RATE = "transmitter.frame_rate_hz" closed [10, 1000] "Hz";
+    TRANSMITTER_AT = "transmitter.script.at_s" closed [0, FAULT_TIME_MAX_S] "s";
+    TRANSMITTER_ROLL = "transmitter.script.roll" closed [-1, 1] "";
+    TRANSMITTER_PITCH = "transmitter.script.pitch" closed [-1, 1] "";
+    TRANSMITTER_YAW = "transmitter.script.yaw" closed [-1, 1] "";
+    TRANSMITTER_THROTTLE = "transmitter.script.throttle" closed [0, 1] "";
 }
 
 /// Scenario values with no range, and why.
@@ -271,12 +279,24 @@ mod tests {
         ];
         s.faults =
             kinds.into_iter().map(|kind| FaultConfig { start_s: 10.0, duration_s: 1.0, kind }).collect();
+        s.transmitter.enabled = true;
+        s.transmitter.script = vec![crate::transmitter::TxEvent {
+            at_s: 1.0,
+            arm: Some(true),
+            mode: Some(crate::transmitter::TxMode::Auto),
+            kill: Some(false),
+            roll: Some(0.1),
+            pitch: Some(-0.1),
+            yaw: Some(0.2),
+            throttle: Some(0.6),
+        }];
         s.validate().expect("the full scenario is valid");
         s
     }
 
     /// Sections that hold the flight code's parameters, declared in control-core.
-    const FLIGHT_SECTIONS: &[&str] = &["vehicle", "gains", "estimator", "trajectory", "failsafe", "downlink"];
+    const FLIGHT_SECTIONS: &[&str] =
+        &["vehicle", "gains", "estimator", "trajectory", "failsafe", "downlink", "rc"];
 
     /// A numeric leaf of the scenario's TOML: its path (keys and indices) and its declared name.
     struct Leaf {

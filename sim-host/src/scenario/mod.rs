@@ -3,7 +3,7 @@
 //! Unknown fields are rejected and every value is checked when the file loads; errors name the field.
 use anyhow::{Context, Result, bail};
 use control_core::params::{
-    ControlGains, DownlinkParams, EstimatorParams, FailsafeParams, FlightParams, TrajectoryParams,
+    ControlGains, DownlinkParams, EstimatorParams, FailsafeParams, FlightParams, RcParams, TrajectoryParams,
     VehicleParams,
 };
 use flight_core::flow::FlowConfig;
@@ -480,6 +480,12 @@ pub struct Scenario {
     /// What the vehicle sends down the radio.
     #[serde(default)]
     pub downlink: DownlinkParams,
+    /// The pilot's transmitter as the flight code uses it (`control_core::pilot`).
+    #[serde(default)]
+    pub rc: RcParams,
+    /// The simulated pilot: whether the vehicle has an RC receiver, and what the transmitter does when.
+    #[serde(default)]
+    pub transmitter: crate::transmitter::TransmitterConfig,
     /// Operator script and run limits.
     #[serde(default)]
     pub mission: MissionConfig,
@@ -542,6 +548,7 @@ impl Scenario {
             trajectory: self.trajectory,
             failsafe: self.failsafe,
             downlink: self.downlink,
+            rc: self.rc,
             home_m: self.model.start_position_m.map(|v| v as f32),
         }
     }

@@ -122,6 +122,8 @@ pub enum FaultKind {
         /// Which rotor (1-4).
         motor: u8,
     },
+    /// The pilot's transmitter is not heard (out of range, switched off): the receiver gets no frame.
+    RcLoss,
 }
 
 impl FaultKind {
@@ -139,6 +141,7 @@ impl FaultKind {
             FaultKind::MagDisturbance { .. } => "mag_disturbance",
             FaultKind::MotorDegradation { .. } => "motor_degradation",
             FaultKind::MotorLoss { .. } => "motor_loss",
+            FaultKind::RcLoss => "rc_loss",
         }
     }
 }

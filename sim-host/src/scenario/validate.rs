@@ -182,7 +182,26 @@ impl Scenario {
                 FaultKind::VisionDropout
                 | FaultKind::VisionFreeze
                 | FaultKind::FlowDropout
-                | FaultKind::LinkLoss => {}
+                | FaultKind::LinkLoss
+                | FaultKind::RcLoss => {}
+            }
+        }
+        let tx = &self.transmitter;
+        v.push(r(TRANSMITTER_FRAME_RATE, &[tx.frame_rate_hz]));
+        for (k, e) in tx.script.iter().enumerate() {
+            let at = |name: &str| format!("transmitter.script[{k}].{name}");
+            v.push(r_at(TRANSMITTER_AT, at("at_s"), &[e.at_s]));
+            for (limit, name, stick) in [
+                (TRANSMITTER_ROLL, "roll", e.roll),
+                (TRANSMITTER_PITCH, "pitch", e.pitch),
+                (TRANSMITTER_YAW, "yaw", e.yaw),
+            ] {
+                if let Some(x) = stick {
+                    v.push(r_at(limit, at(name), &[x]));
+                }
+            }
+            if let Some(x) = e.throttle {
+                v.push(r_at(TRANSMITTER_THROTTLE, at("throttle"), &[x]));
             }
         }
         v
