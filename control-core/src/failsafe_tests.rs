@@ -325,6 +325,7 @@ fn excessive_tilt_stops_the_motors() {
             link_message: true,
             landed: None,
             pilot: None,
+            battery: None,
         });
         if out.status.mode == FlightMode::Emergency {
             assert_eq!(out.status.failsafe, Some(Failsafe::ExcessiveTilt));

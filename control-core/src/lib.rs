@@ -22,6 +22,7 @@
 
 #[macro_use]
 pub mod declare;
+pub mod battery;
 pub mod estimator;
 pub mod laws;
 pub mod mixer;
@@ -189,6 +190,8 @@ pub enum Failsafe {
     RcLost,
     /// The pilot's kill switch: motors off.
     Killed,
+    /// The battery below `battery.critical_cell_v`: landing ([`battery`]).
+    BatteryCritical,
 }
 
 /// Why a command was refused.
@@ -215,6 +218,8 @@ pub enum Refusal {
     ArmSwitchOff,
     /// Arming: `rc.required` and no RC link.
     NoRc,
+    /// Arming: the battery below `battery.warn_cell_v`.
+    BatteryLow,
 }
 
 /// The outcome of the last command.
@@ -279,6 +284,8 @@ pub struct ControlInputs<'a> {
     pub landed: Option<bool>,
     /// The pilot's transmitter, when a receiver has been heard ([`pilot`]).
     pub pilot: Option<pilot::PilotInput>,
+    /// A new reading of the flight battery, if any ([`battery`]).
+    pub battery: Option<battery::BatteryReading>,
 }
 
 /// Status of the flight code.
@@ -381,6 +388,10 @@ pub struct ControlCore {
     /// The pilot's switches and manual references ([`pilot`]), and this step's input.
     pilot: pilot::PilotState,
     pilot_input: Option<pilot::PilotInput>,
+    /// The flight battery ([`battery`]), and whether its critical level has already started a landing (once:
+    /// the pilot may take over from it).
+    battery: battery::BatteryMonitor,
+    battery_landing: bool,
 }
 
 impl ControlCore {
@@ -441,6 +452,8 @@ impl ControlCore {
             limiter: laws::SetpointLimiter::new(),
             pilot: pilot::PilotState::default(),
             pilot_input: None,
+            battery: battery::BatteryMonitor::default(),
+            battery_landing: false,
         }
     }
 
@@ -475,6 +488,11 @@ impl ControlCore {
             }
             Err(_) => refuse(ParamOutcome::Invalid),
         }
+    }
+
+    /// The flight battery as the vehicle reports it, once a reading arrived (and it is monitored).
+    pub fn battery_status(&self) -> Option<battery::BatteryStatus> {
+        if self.params.battery.cells == 0 { None } else { self.battery.status() }
     }
 
     /// The estimator (read-only), e.g. for the attitude at a frame's capture time.
@@ -516,6 +534,8 @@ impl ControlCore {
                     Err(Refusal::FaultLatched)
                 } else if let Some(r) = self.pilot_arm_refusal(self.pilot_input) {
                     Err(r)
+                } else if self.battery.status().is_some_and(|b| b.level != battery::BatteryLevel::Ok) {
+                    Err(Refusal::BatteryLow)
                 } else if !imu_ok || !aligned || !self.estimator.is_healthy() {
                     Err(Refusal::SensorsUnhealthy)
                 } else if tilt > self.params.failsafe.max_arming_tilt_rad {
@@ -737,9 +757,25 @@ impl ControlCore {
             self.motors_off(FlightMode::Emergency);
         }
 
+        // The battery: its level, from the readings (under load while the motors run).
+        let under_load = !matches!(self.mode, FlightMode::Disarmed | FlightMode::Emergency);
+        let battery = self.battery.update(inp.battery, now, under_load, &self.params.battery);
+        if !under_load {
+            self.battery_landing = false;
+        }
         // The pilot's transmitter first: its kill switch wins over everything ([`pilot`]).
         self.pilot_input = inp.pilot;
         self.apply_pilot(inp.pilot, now, &est, imu_ok, link_ok);
+        // A critical battery lands, once (the pilot may take over from that landing in manual).
+        if battery == Some(battery::BatteryLevel::Critical)
+            && self.mode.airborne()
+            && self.mode != FlightMode::Landing
+            && !self.battery_landing
+        {
+            self.battery_landing = true;
+            self.failsafe = Some(Failsafe::BatteryCritical);
+            self.begin_landing(now, &est);
+        }
         if let Some(cmd) = inp.command {
             self.handle_command(cmd, now, &est, imu_ok, link_ok);
         }

@@ -684,6 +684,8 @@ params_struct! {
         downlink: DownlinkParams = DownlinkParams::default(), { section } "";
         /// The pilot's transmitter.
         rc: RcParams = RcParams::default(), { section } "";
+        /// The flight battery.
+        battery: crate::battery::BatteryParams = crate::battery::BatteryParams::default(), { section } "";
         /// Where the vehicle waits on the ground before take-off, world frame (m): the estimator's position
         /// until the first vision fix.
         home_m: [f32; 3] = [0.0; 3], { >= -1000.0, <= 1000.0 } "m";
@@ -706,6 +708,7 @@ impl FlightParams {
         self.failsafe.validate()?;
         self.downlink.validate()?;
         self.rc.validate(&self.gains)?;
+        self.battery.validate()?;
         self.check_declared(0)
     }
 }
@@ -877,7 +880,7 @@ impl FlightParams {
 
 /// Every declared parameter (sections left out), section by section in the order of the tree.
 pub fn declared() -> impl Iterator<Item = &'static crate::declare::ParamSpec> {
-    let tables: [&'static [crate::declare::ParamSpec]; 13] = [
+    let tables: [&'static [crate::declare::ParamSpec]; 14] = [
         VehicleParams::SPECS[0],
         AltitudeGains::SPECS[0],
         YawGains::SPECS[0],
@@ -890,6 +893,7 @@ pub fn declared() -> impl Iterator<Item = &'static crate::declare::ParamSpec> {
         FailsafeParams::SPECS[0],
         DownlinkParams::SPECS[0],
         RcParams::SPECS[0],
+        crate::battery::BatteryParams::SPECS[0],
         FlightParams::SPECS[0],
     ];
     tables.into_iter().flatten().filter(|s| !s.section)

@@ -253,3 +253,56 @@ fn the_channel_map_and_the_manual_tilt_are_checked() {
     assert_eq!(crate::pilot::deadband(-1.0, 0.05), -1.0);
     assert!((crate::pilot::deadband(0.525, 0.05) - 0.5).abs() < 1e-6);
 }
+
+/// The battery ([`crate::battery`]) with the mode logic: a 4-cell pack monitored, read every step.
+fn with_battery(volts: f32) -> Harness {
+    let mut h = Harness::with(|p| p.battery.cells = 4);
+    h.battery = Some(crate::battery::BatteryReading { voltage_v: volts, current_a: None });
+    h
+}
+
+#[test]
+fn a_low_battery_refuses_arming_and_a_critical_one_lands_once() {
+    // 3.4 V a cell at rest: low, arming refused.
+    let mut h = with_battery(13.6);
+    h.run(1.0);
+    assert_eq!(h.command(Command::Arm), Some(CommandResult::Refused(Command::Arm, Refusal::BatteryLow)));
+    // Full: flies; then the pack falls to 3.2 V a cell in the air: after the 2 s low-pass a landing.
+    let mut h = with_battery(16.4);
+    h.run(1.0);
+    assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
+    assert_eq!(h.command(Command::TakeOff), Some(CommandResult::Accepted(Command::TakeOff)));
+    h.run_until(FlightMode::Hover, 20.0);
+    h.battery = Some(crate::battery::BatteryReading { voltage_v: 12.8, current_a: None });
+    h.run(1.0);
+    assert_eq!(h.mode(), FlightMode::Hover, "a short sag is not a landing");
+    h.run_until(FlightMode::Landing, 5.0);
+    assert_eq!(h.out.unwrap().status.failsafe, Some(Failsafe::BatteryCritical));
+    // The landing's lighter load lets the voltage recover: it goes on landing.
+    h.battery = Some(crate::battery::BatteryReading { voltage_v: 15.0, current_a: None });
+    h.run(1.0);
+    assert_eq!(h.mode(), FlightMode::Landing);
+    h.run_until(FlightMode::Disarmed, 20.0);
+    // Unmonitored (0 cells, the paper's vehicle): the same readings do nothing.
+    let mut h = Harness::new();
+    h.battery = Some(crate::battery::BatteryReading { voltage_v: 1.0, current_a: None });
+    h.run(1.0);
+    assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
+}
+
+#[test]
+fn the_pilot_may_take_over_from_a_battery_landing() {
+    let mut h = with_battery(16.4);
+    h.pilot = Some(sticks(false, ModeSwitch::Auto));
+    h.run(1.0);
+    h.pilot = Some(sticks(true, ModeSwitch::Auto));
+    h.step(None);
+    assert_eq!(h.command(Command::TakeOff), Some(CommandResult::Accepted(Command::TakeOff)));
+    h.run_until(FlightMode::Hover, 20.0);
+    h.battery = Some(crate::battery::BatteryReading { voltage_v: 12.8, current_a: None });
+    h.run_until(FlightMode::Landing, 10.0);
+    // Manual: the pilot flies (and lands) it; the battery does not take it back.
+    h.pilot = Some(sticks(true, ModeSwitch::Manual));
+    h.run(2.0);
+    assert_eq!(h.mode(), FlightMode::Manual);
+}

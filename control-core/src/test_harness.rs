@@ -40,6 +40,8 @@ pub(crate) struct Harness {
     pub(crate) trail: [Vec3; 32],
     /// The pilot's transmitter, delivered every step.
     pub(crate) pilot: Option<pilot::PilotInput>,
+    /// The battery's reading, delivered every step.
+    pub(crate) battery: Option<battery::BatteryReading>,
 }
 
 impl Harness {
@@ -76,6 +78,7 @@ impl Harness {
             accel_lp: Vec3::new(0.0, 0.0, GRAVITY),
             trail: [home; 32],
             pilot: None,
+            battery: None,
         }
     }
 
@@ -166,6 +169,7 @@ impl Harness {
             link_message: self.link_on,
             landed: None,
             pilot: self.pilot,
+            battery: self.battery,
         });
         self.out = Some(out);
         out

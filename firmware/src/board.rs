@@ -388,7 +388,8 @@ mod variant {
     use drivers::mpu6000::Mpu6000;
     use embedded_hal_bus::i2c::RefCellDevice;
     use embedded_hal_bus::spi::{ExclusiveDevice, NoDelay};
-    use stm32f4xx_hal::gpio::{Output, PA4};
+    use stm32f4xx_hal::adc::{Adc, config::AdcConfig, config::SampleTime};
+    use stm32f4xx_hal::gpio::{Analog, Output, PA4, PC1};
     use stm32f4xx_hal::i2c::{I2c, Mode as I2cMode};
     use stm32f4xx_hal::pac::{I2C1, SPI1};
     use stm32f4xx_hal::rcc::Config;
@@ -401,7 +402,15 @@ mod variant {
         mag: Option<Hmc5883l<SharedI2c>>,
         esc: BlCtrl<SharedI2c>,
         rng: pac::RNG,
+        adc: Adc<pac::ADC1>,
+        vbat: PC1<Analog>,
     }
+
+    /// The battery voltage's divider on PC1 (10 k over 1 k: 11, Betaflight's `vbat_scale` 110).
+    pub const VBAT_SCALE: f32 = 11.0;
+    /// The ADC's reference (V) and full scale.
+    const ADC_VREF: f32 = 3.3;
+    const ADC_FULL_SCALE: f32 = 4095.0;
 
     impl Board {
         /// Clocks, pins, sensors, speed controllers, UART, tick (counting from here; the control loop runs on it
@@ -418,7 +427,11 @@ mod variant {
             dp.RNG.cr().modify(|_, w| w.rngen().set_bit());
             let gpioa = dp.GPIOA.split(&mut rcc);
             let gpiob = dp.GPIOB.split(&mut rcc);
+            let gpioc = dp.GPIOC.split(&mut rcc);
             let mut delay = dp.TIM5.delay_us(&mut rcc);
+            // The battery's voltage divider on PC1, read by ADC1.
+            let adc = Adc::new(dp.ADC1, true, AdcConfig::default(), &mut rcc);
+            let vbat = gpioc.pc1.into_analog();
             // IMU on SPI1, mode 3, 1 MHz (the MPU-6000's limit for its configuration registers).
             let spi = dp.SPI1.spi(
                 (Some(gpioa.pa5), Some(gpioa.pa6), Some(gpioa.pa7)),
@@ -481,7 +494,7 @@ mod variant {
                 flash: Some(flash),
                 nonces: 0,
                 rng_errors: 0,
-                hw: Hardware { imu, mag, esc, rng: dp.RNG },
+                hw: Hardware { imu, mag, esc, rng: dp.RNG, adc, vbat },
             }
         }
 
@@ -539,6 +552,14 @@ mod variant {
         /// The magnetometer's field (body axes), if present and readable.
         pub fn read_mag(&mut self) -> Option<Vec3> {
             self.hw.mag.as_mut()?.read_field().ok().map(Vec3::from_array)
+        }
+
+        /// The battery's voltage (no current sensor on this board).
+        pub fn read_battery(&mut self) -> Option<control_core::battery::BatteryReading> {
+            let hw = &mut self.hw;
+            let raw = hw.adc.convert(&hw.vbat, SampleTime::Cycles_480);
+            let voltage_v = raw as f32 / ADC_FULL_SCALE * ADC_VREF * VBAT_SCALE;
+            Some(control_core::battery::BatteryReading { voltage_v, current_a: None })
         }
 
         /// Commands the four speed controllers.
@@ -753,6 +774,11 @@ mod variant {
 
         /// No magnetometer.
         pub fn read_mag(&mut self) -> Option<Vec3> {
+            None
+        }
+
+        /// No battery sensor (the firmware in the loop takes the simulator's readings).
+        pub fn read_battery(&mut self) -> Option<control_core::battery::BatteryReading> {
             None
         }
 

@@ -33,6 +33,7 @@ pub struct Flight {
     reply: [u8; MAX_FRAME],
     imu: Vec<ImuSample, 4>,
     mag: Option<Vec3>,
+    battery: Option<control_core::battery::BatteryReading>,
     downlinks: DownlinkSchedule,
     motor_max: f32,
     stats: RunStats,
@@ -57,6 +58,7 @@ impl Flight {
             reply: [0u8; MAX_FRAME],
             imu: Vec::new(),
             mag: None,
+            battery: None,
             downlinks: DownlinkSchedule::new(),
             motor_max: cfg.control.vehicle.motor_speed_max_rad_s,
             stats: RunStats::default(),
@@ -85,6 +87,8 @@ impl Flight {
         }
         if tick.is_multiple_of(MAG_EVERY) {
             self.mag = board.read_mag();
+            // The battery at the same 50 Hz.
+            self.battery = board.read_battery();
         }
         if tick.is_multiple_of(STEP_EVERY) {
             self.step(board, time_us);
@@ -152,6 +156,7 @@ impl Flight {
             uplink: &uplink,
             landed: None,
             pilot,
+            battery: self.battery.take(),
         });
         let step_cost = board::cycles_since(t0);
         stats.record_step(step_cost);
@@ -172,6 +177,7 @@ impl Flight {
             time_us,
             step_cost,
             every,
+            out.battery,
             |m| {
                 if !link::send(board, radio, &m) {
                     stats.downlink_dropped += 1;

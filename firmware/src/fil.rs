@@ -43,8 +43,10 @@ pub fn run(
     let (mut background_cycles, mut background_solves) = (0u32, 0u8);
     let mut rx = [0u8; 512];
     let mut upload = ConfigUpload::new();
-    // The pilot's transmitter for the next step (the simulator's receiver's), when there is one.
+    // The pilot's transmitter (the simulator's receiver's) and the battery's reading for the next step, when
+    // there are.
     let mut pilot = None;
+    let mut battery = None;
     send(&mut io, &FcToFil::Hello { wire_version: WIRE_VERSION }, &mut stats);
     loop {
         let n = io.read(&mut rx);
@@ -75,6 +77,7 @@ pub fn run(
                         uplink: &uplink,
                         landed: s.landed,
                         pilot: pilot.take(),
+                        battery: battery.take(),
                     });
                     let cost = board::cycles_since(t0);
                     uplink.clear();
@@ -88,6 +91,7 @@ pub fn run(
                         s.time_us,
                         cost,
                         every,
+                        out.battery,
                         |m| send(&mut io, &FcToFil::Link(m), &mut stats),
                     );
                     send(
@@ -107,6 +111,7 @@ pub fn run(
                     stats.record_background(background_cycles);
                 }
                 Some(Ok(FilToFc::Pilot(p))) => pilot = Some(p),
+                Some(Ok(FilToFc::Battery(b))) => battery = Some(b),
                 Some(Ok(FilToFc::AuthCost)) => {
                     let cost = flight_core::fil::measure_auth_cost(board::cycles);
                     send(&mut io, &FcToFil::AuthCost(cost), &mut stats);

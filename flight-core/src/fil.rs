@@ -47,6 +47,8 @@ pub enum FilToFc {
     AuthCost,
     /// The pilot's transmitter for the next step (sent before its `Step` when a receiver has been heard).
     Pilot(control_core::pilot::PilotInput),
+    /// A reading of the flight battery for the next step.
+    Battery(control_core::battery::BatteryReading),
 }
 
 /// Flight computer to simulator.
@@ -235,6 +237,7 @@ mod tests {
             uplink: &[],
             landed: None,
             pilot: None,
+            battery: None,
         });
         let mut report = out.report();
         // Fill the optional parts, as the largest step reply would have them.

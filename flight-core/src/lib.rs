@@ -111,6 +111,8 @@ pub struct StepInput<'a> {
     pub landed: Option<bool>,
     /// The pilot's transmitter, when a receiver has been heard (`control_core::pilot`).
     pub pilot: Option<control_core::pilot::PilotInput>,
+    /// A new reading of the flight battery, if any (`control_core::battery`).
+    pub battery: Option<control_core::battery::BatteryReading>,
 }
 
 /// The outcome of this step's vision frame, if one arrived.
@@ -187,6 +189,8 @@ pub struct StepOutput {
     /// Telemetry every this many steps (the parameter `downlink.telemetry_every_steps` now), for
     /// [`telemetry::DownlinkSchedule::after_step`].
     pub telemetry_every: u32,
+    /// The flight battery as the vehicle reports it (when monitored).
+    pub battery: Option<control_core::battery::BatteryStatus>,
 }
 
 /// What a step returns, without the pose of this step's frame: what the simulator needs from a flight
@@ -534,6 +538,7 @@ impl FlightStack {
             link_message: !inp.uplink.is_empty(),
             landed: inp.landed,
             pilot: inp.pilot,
+            battery: inp.battery,
         });
         StepOutput {
             control,
@@ -545,6 +550,7 @@ impl FlightStack {
             time_sync,
             estimator: self.control.estimator().counters(),
             telemetry_every: self.control.params().downlink.telemetry_every_steps as u32,
+            battery: self.control.battery_status(),
         }
     }
 }
@@ -577,6 +583,7 @@ mod tests {
                 uplink,
                 landed: None,
                 pilot: None,
+                battery: None,
             })
         };
         for _ in 0..400 {
@@ -626,6 +633,7 @@ mod tests {
                 uplink: &[Uplink::Heartbeat],
                 landed: None,
                 pilot: None,
+                battery: None,
             });
         }
         t += 2000;
@@ -637,6 +645,7 @@ mod tests {
             uplink: &[Uplink::ParamSet { id: ParamId::TrajectorySpeed, value: 0.3 }],
             landed: None,
             pilot: None,
+            battery: None,
         });
         let r = out.param_reply.unwrap();
         assert_eq!((r.id, r.value, r.outcome), (ParamId::TrajectorySpeed, 0.3, ParamOutcome::Ok));
@@ -651,6 +660,7 @@ mod tests {
             uplink: &[Uplink::TimeSync { station_time_us: 77_000_123 }],
             landed: None,
             pilot: None,
+            battery: None,
         });
         assert_eq!(out.time_sync, Some(77_000_123));
         assert_eq!(out.report().time_sync, Some(77_000_123));
@@ -662,6 +672,7 @@ mod tests {
             t,
             0,
             out.telemetry_every,
+            out.battery,
             |d| sent.push(d),
         );
         assert_eq!(sent, [protocol::Downlink::TimeSync { station_time_us: 77_000_123, vehicle_time_us: t }]);
@@ -677,13 +688,14 @@ mod tests {
             uplink: &[Uplink::ParamSet { id: ParamId::TelemetryEvery, value: 50.0 }],
             landed: None,
             pilot: None,
+            battery: None,
         });
         assert_eq!(out.param_reply.unwrap().outcome, ParamOutcome::Ok);
         assert_eq!(out.telemetry_every, 50);
         let mut schedule = telemetry::DownlinkSchedule::new();
         let mut telemetry_steps = std::vec::Vec::new();
         for k in 1..=200u32 {
-            schedule.after_step(&out.control, None, None, t, 0, out.telemetry_every, |d| {
+            schedule.after_step(&out.control, None, None, t, 0, out.telemetry_every, None, |d| {
                 if matches!(d, protocol::Downlink::PackedTelemetry(_)) {
                     telemetry_steps.push(k)
                 }
@@ -703,6 +715,7 @@ mod tests {
             uplink: &[Uplink::Command(Command::Arm)],
             landed: None,
             pilot: None,
+            battery: None,
         });
         assert_eq!(out.control.status.mode, FlightMode::Armed);
         // A frame without the line is counted, not solved.
@@ -716,6 +729,7 @@ mod tests {
             uplink: &[Uplink::Vision(m)],
             landed: None,
             pilot: None,
+            battery: None,
         });
         assert_eq!(out.frame, Some(FrameOutcome::NoTarget));
         assert_eq!(out.vision.no_target, 1);
@@ -757,6 +771,7 @@ mod tests {
                 uplink: &[],
                 landed: None,
                 pilot: None,
+                battery: None,
             });
         }
         // The step queues the frame; nothing is solved within it.
@@ -770,6 +785,7 @@ mod tests {
             uplink: &[Uplink::Vision(m)],
             landed: None,
             pilot: None,
+            battery: None,
         });
         assert_eq!((out.frame, out.vision.solved, out.vision.frames), (None, 0, 1));
         assert_eq!(s.pending_solves(), 1);
@@ -786,6 +802,7 @@ mod tests {
             uplink: &[],
             landed: None,
             pilot: None,
+            battery: None,
         });
         let Some(FrameOutcome::Solved(p)) = out.frame else { panic!("solved: {:?}", out.frame) };
         let want = VisionConfig::default().target.center() - Vec3::new(0.0, -1.2, 0.0);
@@ -805,6 +822,7 @@ mod tests {
             uplink: &uplink,
             landed: None,
             pilot: None,
+            battery: None,
         });
         assert_eq!((out.vision.frames, out.vision.dropped), (4, 1));
         assert_eq!(s.solve_pending(), 2);
@@ -817,6 +835,7 @@ mod tests {
             uplink: &[],
             landed: None,
             pilot: None,
+            battery: None,
         });
         assert_eq!(out.vision.solved, 3);
     }
@@ -843,6 +862,7 @@ mod tests {
                 uplink: &frames,
                 landed: None,
                 pilot: None,
+                battery: None,
             };
             assert_eq!(a.step(&inp), b.step(&inp), "step {k}");
             let n = a.solve_pending();
@@ -862,7 +882,8 @@ mod tests {
                 baro_m: None,
                 uplink: &[],
                 landed: None,
-                pilot: None
+                pilot: None,
+                battery: None
             })
             .vision
             .solved
@@ -888,6 +909,7 @@ mod tests {
                 uplink: &[],
                 landed: None,
                 pilot: None,
+                battery: None,
             });
         }
         let m = frame_seen(t - 30_000, 1);
@@ -900,6 +922,7 @@ mod tests {
             uplink: &[Uplink::Vision(m)],
             landed: None,
             pilot: None,
+            battery: None,
         });
         assert_eq!(s.pending_solves(), 1);
         s.solve_pending();
@@ -916,6 +939,7 @@ mod tests {
             uplink: &[Uplink::Vision(again)],
             landed: None,
             pilot: None,
+            battery: None,
         });
         assert_eq!(out.frame, Some(FrameOutcome::Frozen));
         assert_eq!((out.vision.frozen, out.vision.frames), (1, 2));
@@ -931,6 +955,7 @@ mod tests {
             uplink: &[Uplink::Vision(fresh)],
             landed: None,
             pilot: None,
+            battery: None,
         });
         assert_eq!(s.pending_solves(), 1);
     }

@@ -9,24 +9,30 @@ use protocol::{Downlink, PackedTelemetry, Telemetry};
 /// `downlink.telemetry_every_steps`, which a ground station on a slow radio raises.
 pub const TELEMETRY_EVERY: u32 = 20;
 
+/// The battery's report is sent this often (us), and at once when its level changes.
+pub const BATTERY_PERIOD_US: u64 = 1_000_000;
+
 /// The downlink schedule: which messages a step produces.
 #[derive(Clone, Debug, Default)]
 pub struct DownlinkSchedule {
     steps: u32,
     last_command: Option<CommandResult>,
+    /// When the battery was last reported, and its level then.
+    last_battery: Option<(u64, control_core::battery::BatteryLevel)>,
 }
 
 impl DownlinkSchedule {
     /// A schedule before the first step.
     pub const fn new() -> Self {
-        Self { steps: 0, last_command: None }
+        Self { steps: 0, last_command: None, last_battery: None }
     }
 
     /// The messages of one step, in order: the acknowledgement of a command whose outcome changed, the reply
     /// to this step's parameter request, the answer to its clock-synchronisation request (`time_sync`, the
     /// station time to echo with `time_us`), and every `telemetry_every`th step (the step output's
     /// `telemetry_every`, [`TELEMETRY_EVERY`] by default) telemetry with the step's measured cost
-    /// (`step_cost`, 0 when not measured), packed ([`protocol::packed`]).
+    /// (`step_cost`, 0 when not measured), packed ([`protocol::packed`]); and the battery (when monitored)
+    /// every [`BATTERY_PERIOD_US`] and when its level changes.
     #[allow(clippy::too_many_arguments)]
     pub fn after_step(
         &mut self,
@@ -36,6 +42,7 @@ impl DownlinkSchedule {
         time_us: u64,
         step_cost: u32,
         telemetry_every: u32,
+        battery: Option<control_core::battery::BatteryStatus>,
         mut send: impl FnMut(Downlink),
     ) {
         self.steps = self.steps.wrapping_add(1);
@@ -63,6 +70,16 @@ impl DownlinkSchedule {
                 fix_age_s: st.fix_age_s,
                 step_cost,
             })));
+        }
+        if let Some(b) = battery {
+            let due = match self.last_battery {
+                None => true,
+                Some((t, level)) => level != b.level || time_us.saturating_sub(t) >= BATTERY_PERIOD_US,
+            };
+            if due {
+                self.last_battery = Some((time_us, b.level));
+                send(Downlink::Battery(b));
+            }
         }
     }
 

@@ -50,7 +50,8 @@ pub const SCHEMA_HASH_FORMAT_8: &str = "586ae63c49f24cfc";
 /// The record schema of format 9, whose records are those of format 10 without the configuration upload's
 /// messages (`Uplink::Config`, `Downlink::ConfigAck`), the pilot's transmitter (`LogRecord::Pilot`, the mode
 /// `FlightMode::Manual`, the failsafes `RcLost` and `Killed`, the refusals `KillSwitch`, `ArmSwitchOff` and
-/// `NoRc`), all appended variants: such logs are read as they are.
+/// `NoRc`) and the battery (`LogRecord::Battery`, `Downlink::Battery`, `Failsafe::BatteryCritical`,
+/// `Refusal::BatteryLow`), all appended variants: such logs are read as they are.
 pub const SCHEMA_HASH_FORMAT_9: &str = "e1de2b7ec4b68d9c";
 
 /// The record schema a log of format `version` was written in, for the versions this reader reads.
@@ -113,6 +114,8 @@ pub enum LogRecord {
     /// The pilot's transmitter as the flight stack got it for the next step, when the vehicle has an RC
     /// receiver and has heard it (format 10).
     Pilot(control_core::pilot::PilotInput),
+    /// A reading of the flight battery for the next step (format 10).
+    Battery(control_core::battery::BatteryReading),
 }
 
 /// A ground station's record of the radio: each message with the station's time (us since the Unix epoch),
@@ -184,6 +187,7 @@ impl LogRecord {
             LogRecord::End { .. } => "end",
             LogRecord::Station(_) => "station",
             LogRecord::Pilot(_) => "pilot",
+            LogRecord::Battery(_) => "battery",
         }
     }
 }

@@ -240,6 +240,8 @@ pub enum Downlink {
     LinkStatus(LinkStatus),
     /// The answer to a whole configuration upload.
     ConfigAck(ConfigAck),
+    /// The flight battery, once a second (when the vehicle monitors it).
+    Battery(control_core::battery::BatteryStatus),
 }
 
 impl Downlink {

@@ -184,9 +184,12 @@ pub(crate) fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
             out.push(Msg { topic, schema, time_us: step_us, body: timed(step_us, value) });
         }
         LogRecord::Downlink(d) => {
-            let (topic, schema, time_us, value) = match d.telemetry() {
-                Some(t) => ("/downlink/telemetry", "wlq.Telemetry", t.time_us, v(&t)),
-                None => ("/downlink/other", "wlq.Downlink", step_us, v(d)),
+            let (topic, schema, time_us, value) = match (d.telemetry(), d) {
+                (Some(t), _) => ("/downlink/telemetry", "wlq.Telemetry", t.time_us, v(&t)),
+                (_, protocol::Downlink::Battery(b)) => {
+                    ("/downlink/battery", "wlq.BatteryStatus", step_us, v(b))
+                }
+                _ => ("/downlink/other", "wlq.Downlink", step_us, v(d)),
             };
             out.push(Msg { topic, schema, time_us, body: timed(time_us, value) });
         }
@@ -254,6 +257,13 @@ pub(crate) fn topics(r: &LogRecord, step_us: u64, out: &mut Vec<Msg>) {
             schema: "wlq.PilotInput",
             time_us: step_us,
             body: timed(step_us, v(p)),
+        }),
+        // A battery reading for the next step, likewise.
+        LogRecord::Battery(b) => out.push(Msg {
+            topic: "/battery/reading",
+            schema: "wlq.BatteryReading",
+            time_us: step_us,
+            body: timed(step_us, v(b)),
         }),
         // Frames have topics of their own; the end record is the file's, not the flight's.
         LogRecord::Frame(_) | LogRecord::End { .. } => {}

@@ -347,7 +347,12 @@ impl QemuFc {
         let mut out = Vec::with_capacity(MAX_FRAME * (input.uplink.len() + 1));
         let mut buf = [0u8; MAX_FRAME];
         // The radio messages, the pilot's transmitter when there is one, then the sensors.
-        let msgs = input.uplink.iter().map(|m| FilToFc::Link(*m)).chain(input.pilot.map(FilToFc::Pilot));
+        let msgs = input
+            .uplink
+            .iter()
+            .map(|m| FilToFc::Link(*m))
+            .chain(input.pilot.map(FilToFc::Pilot))
+            .chain(input.battery.map(FilToFc::Battery));
         for msg in msgs.chain([FilToFc::Step(SensorStep {
             time_us: input.time_us,
             imu,

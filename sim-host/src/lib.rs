@@ -21,6 +21,7 @@ pub mod mavlink_endpoint;
 pub use vehicle_model as model;
 pub mod params_doc;
 pub mod plot;
+pub mod power;
 pub mod reference;
 pub mod render;
 pub mod replay;

@@ -85,6 +85,7 @@ impl MavlinkEndpoint {
         let out = match (d.telemetry(), d) {
             (Some(tm), _) => self.bridge.telemetry(&tm),
             (None, Downlink::CommandAck(r)) => self.bridge.command_result(*r),
+            (None, Downlink::Battery(b)) => self.bridge.battery(b),
             (None, Downlink::Param(r)) => {
                 self.params.answered(r.id);
                 self.bridge.param_reply(*r)

@@ -191,8 +191,9 @@ pub fn replay_stream(
     });
     let mut schedule = DownlinkSchedule::new();
     let mut uplink: Vec<Uplink> = Vec::new();
-    // The pilot's transmitter for the next step, when the log holds it (format 10).
+    // The pilot's transmitter and the battery's reading for the next step, when the log holds them (format 10).
     let mut pilot = None;
+    let mut battery = None;
     let mut last: Option<(u64, StepReport)> = None;
     let mut downlinks: VecDeque<Downlink> = VecDeque::new();
     let mut step_time = 0u64;
@@ -252,6 +253,7 @@ pub fn replay_stream(
                     uplink: &uplink,
                     landed: step.landed,
                     pilot: pilot.take(),
+                    battery: battery.take(),
                 });
                 stack.solve_pending();
                 if let Some(sc) = score.as_mut() {
@@ -276,6 +278,7 @@ pub fn replay_stream(
                     step.time_us,
                     0,
                     o.telemetry_every,
+                    o.battery,
                     |d| downlinks.push_back(d),
                 );
                 last = Some((step.time_us, report));
@@ -366,6 +369,10 @@ pub fn replay_stream(
             LogRecord::Pilot(p) => {
                 pilot = Some(p);
                 write(&LogRecord::Pilot(p))?;
+            }
+            LogRecord::Battery(b) => {
+                battery = Some(b);
+                write(&LogRecord::Battery(b))?;
             }
             // A ground station's record of the radio: nothing to re-run, kept in a replayed log.
             LogRecord::Station(e) => {

@@ -159,6 +159,15 @@ impl Rms {
     }
 }
 
+/// The simulated battery of a run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct BatteryStats {
+    /// State of charge at the end (0-1).
+    pub final_charge: f64,
+    /// The lowest terminal voltage (V).
+    pub min_voltage_v: f64,
+}
+
 /// What a run measured.
 #[derive(Clone, Debug, Default)]
 pub struct RunStats {
@@ -217,6 +226,8 @@ pub struct RunStats {
     pub landed: bool,
     /// Fastest touchdown (m/s).
     pub max_touchdown_speed_m_s: f64,
+    /// The simulated battery at the end, when the scenario has one.
+    pub battery: Option<BatteryStats>,
     /// Whether the vehicle has the downward camera.
     pub flow_camera: bool,
     /// Downward-camera frames captured.
@@ -297,6 +308,9 @@ pub struct Sil {
     operator: ground_station::operator::Operator,
     /// The simulated pilot's transmitter and the vehicle's receiver, when the scenario has them.
     transmitter: Option<crate::transmitter::Transmitter>,
+    /// The simulated flight battery, when the scenario has one, and its last reading not yet stepped on.
+    power: Option<crate::power::Power>,
+    pending_battery: Option<control_core::battery::BatteryReading>,
     /// Downlink messages on their way to the ground station, with their arrival times.
     downlink_queue: VecDeque<(u64, protocol::Downlink)>,
     /// The last telemetry the ground station received.
@@ -518,6 +532,12 @@ impl Sil {
                 sweep: true,
             }),
             transmitter: crate::transmitter::Transmitter::new(&scenario.transmitter, scenario.rc.channel_map),
+            power: crate::power::Power::new(
+                &scenario.battery_model,
+                scenario.vehicle.motor_speed_max_rad_s as f64,
+                seed,
+            ),
+            pending_battery: None,
             downlink_queue: VecDeque::new(),
             station_telemetry: None,
             was_airborne: false,
@@ -982,6 +1002,7 @@ impl Sil {
         let heard = self.fault_active(|k| matches!(k, FaultKind::RcLoss)).is_none();
         let t_us = self.t_us;
         let pilot = self.transmitter.as_mut().and_then(|tx| tx.step(t_us, heard));
+        let battery = self.pending_battery.take();
         let input = StepInput {
             time_us: self.t_us,
             imu: &self.pending_imu,
@@ -990,6 +1011,7 @@ impl Sil {
             uplink: &delivered,
             landed: None,
             pilot,
+            battery,
         };
         let mut downlinks: Vec<protocol::Downlink> = Vec::new();
         let out = match self.fc.as_mut() {
@@ -1005,6 +1027,7 @@ impl Sil {
                     self.t_us,
                     0,
                     o.telemetry_every,
+                    o.battery,
                     |d| downlinks.push(d),
                 );
                 o.report()
@@ -1058,6 +1081,7 @@ impl Sil {
             };
             let mut records: Vec<LogRecord> = delivered.iter().map(|m| LogRecord::Link(*m)).collect();
             records.extend(pilot.map(LogRecord::Pilot));
+            records.extend(battery.map(LogRecord::Battery));
             records.push(LogRecord::Step(step));
             records.push(LogRecord::Report(out));
             records.extend(downlinks.iter().map(|d| LogRecord::Downlink(*d)));
@@ -1205,6 +1229,15 @@ impl Sil {
         let t_s = self.time_s();
         self.quad.params.rotor_scale = self.motor_faults(t_s);
         let h = self.dt_us as f64 * 1e-6;
+        // The battery: the charge the rotors draw, the sag's limit on their speed, its readings.
+        if let Some(p) = self.power.as_mut() {
+            self.quad.params.motor_limits[1] = p.step(self.quad.params.k_tau, self.quad.state.rotors, h);
+            if let Some(r) = p.reading(self.t_us) {
+                self.pending_battery = Some(r);
+            }
+            self.stats.battery =
+                Some(BatteryStats { final_charge: p.charge(), min_voltage_v: p.min_voltage_v });
+        }
         if !self.wind.is_calm() {
             self.wind_now = self.wind.step(t_s, h, self.quad.state.v);
         }

@@ -89,6 +89,7 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
             LogRecord::Link(m) if m.flow().is_some() => add("/link/flow", 1),
             LogRecord::Link(_) => add("/link/other", 1),
             LogRecord::Downlink(d) if d.telemetry().is_some() => add("/downlink/telemetry", 1),
+            LogRecord::Downlink(protocol::Downlink::Battery(_)) => add("/downlink/battery", 1),
             LogRecord::Downlink(_) => add("/downlink/other", 1),
             LogRecord::Truth { .. } => {
                 add("/truth/pose", 1);
@@ -104,6 +105,7 @@ fn an_exported_mcap_reads_back_with_the_expected_channels_and_counts() {
             }
             LogRecord::Frame(_) => add("/camera/down/image", 1),
             LogRecord::Pilot(_) => add("/pilot", 1),
+            LogRecord::Battery(_) => add("/battery/reading", 1),
             // The file's end record has no topic; a simulated flight's log has no station records (the
             // station's export is checked by sim-host/tests/station_e2e.rs).
             LogRecord::End { .. } => {}

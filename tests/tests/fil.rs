@@ -228,8 +228,9 @@ fn a_scenario_with_other_gains_flies_in_qemu_after_the_upload() {
     eprintln!("other gains in QEMU: {} steps bit for bit, rms {:?}", fw_cmds.len(), fw.rms_error_m);
 }
 
-/// The pilot's transmitter through the firmware: the mission, the pilot's manual take-over with a stick input,
-/// and the landing by the mode switch, bit for bit with the flight code in this process.
+/// The pilot's transmitter and the battery through the firmware: the mission, the pilot's manual take-over with
+/// a stick input, and the landing by the mode switch, on a simulated battery, bit for bit with the flight code
+/// in this process.
 #[test]
 fn the_pilot_s_transmitter_flies_the_firmware_as_it_flies_the_simulator() {
     use sim_host::transmitter::{TxEvent, TxMode};
@@ -248,6 +249,11 @@ fn the_pilot_s_transmitter_flies_the_firmware_as_it_flies_the_simulator() {
         TxEvent { roll: Some(0.0), throttle: Some(0.5), ..at(14.0) },
         TxEvent { mode: Some(TxMode::Land), ..at(16.0) },
     ];
+    // On a simulated battery read by the flight code (its readings go to the firmware too), charged so that
+    // it warns but does not land.
+    s.battery_model.enabled = true;
+    s.battery_model.initial_charge = 0.3;
+    s.battery.cells = 3;
     s.validate().unwrap();
     let fly = |fc: &FcChoice| {
         let mut sil = Sil::with_fc(&s, 2, CameraMode::Analytic, fc).unwrap();

@@ -28,6 +28,8 @@
 #![allow(clippy::needless_range_loop)]
 #![warn(missing_docs)]
 
+pub mod battery;
+
 use control_core::mixer::SPIN;
 use control_core::params::VehicleParams;
 

@@ -147,6 +147,8 @@ pub struct Bridge {
     counters: BridgeCounters,
     /// Link errors the station counted (for `SYS_STATUS`).
     link_errors: u64,
+    /// The vehicle's last battery report (for `SYS_STATUS`).
+    battery: Option<control_core::battery::BatteryStatus>,
 }
 
 impl Bridge {
@@ -225,9 +227,14 @@ impl Bridge {
             onboard_control_sensors_enabled: present,
             onboard_control_sensors_health: health,
             load: 0,
-            // No battery monitoring on board yet: "not sent by autopilot".
-            voltage_battery: u16::MAX,
-            current_battery: -1,
+            // The vehicle's battery report (mV and cA); without one, "not sent by autopilot".
+            voltage_battery: self
+                .battery
+                .map_or(u16::MAX, |b| (b.voltage_v * 1000.0).round().clamp(0.0, 65534.0) as u16),
+            current_battery: self
+                .battery
+                .and_then(|b| b.current_a)
+                .map_or(-1, |i| (i * 100.0).round().clamp(0.0, 32767.0) as i16),
             drop_rate_comm: 0,
             errors_comm: self.link_errors.min(u16::MAX as u64) as u16,
             errors_count1: 0,
@@ -302,6 +309,23 @@ impl Bridge {
             vz,
         }));
         out
+    }
+
+    /// The vehicle's battery report: kept for `SYS_STATUS`, and a `STATUSTEXT` when its level falls (a warning
+    /// when low, critical when the vehicle lands on it).
+    pub fn battery(&mut self, b: &control_core::battery::BatteryStatus) -> Vec<MavMessage> {
+        use control_core::battery::BatteryLevel;
+        let previous = self.battery.replace(*b).map(|p| p.level);
+        let text = |sev, what: &str| statustext(sev, &format!("battery {what}: {:.2} V a cell", b.cell_v));
+        match (previous, b.level) {
+            (p, BatteryLevel::Low) if p != Some(BatteryLevel::Low) => {
+                vec![text(mav::MavSeverity::MAV_SEVERITY_WARNING, "low")]
+            }
+            (p, BatteryLevel::Critical) if p != Some(BatteryLevel::Critical) => {
+                vec![text(mav::MavSeverity::MAV_SEVERITY_CRITICAL, "critical")]
+            }
+            _ => Vec::new(),
+        }
     }
 
     /// The vehicle's answer to a command: the `COMMAND_ACK` of the MAVLink command that asked for it

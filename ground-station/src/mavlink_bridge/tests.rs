@@ -441,3 +441,31 @@ fn requests_for_another_system_are_ignored_and_odd_arm_values_unsupported() {
     assert_eq!(acks(&out), vec![(C::MAV_CMD_COMPONENT_ARM_DISARM, mav::MavResult::MAV_RESULT_UNSUPPORTED)]);
     assert_eq!(b.counters().taken, 2);
 }
+
+#[test]
+fn the_battery_report_fills_sys_status_and_a_falling_level_is_announced() {
+    use control_core::battery::{BatteryLevel, BatteryStatus};
+    let mut b = Bridge::new();
+    let sys = |b: &Bridge| match b.sys_status() {
+        MavMessage::SYS_STATUS(s) => (s.voltage_battery, s.current_battery),
+        other => panic!("{other:?}"),
+    };
+    assert_eq!(sys(&b), (u16::MAX, -1), "no report yet: not sent");
+    let ok =
+        BatteryStatus { voltage_v: 11.84, cell_v: 3.95, current_a: Some(12.345), level: BatteryLevel::Ok };
+    assert!(b.battery(&ok).is_empty());
+    assert_eq!(sys(&b), (11_840, 1_235));
+    let low = BatteryStatus { voltage_v: 10.6, cell_v: 3.55, current_a: None, level: BatteryLevel::Low };
+    let texts = b.battery(&low);
+    assert_eq!(texts.len(), 1);
+    assert!(
+        matches!(&texts[0], MavMessage::STATUSTEXT(t) if t.severity == mav::MavSeverity::MAV_SEVERITY_WARNING)
+    );
+    assert!(b.battery(&low).is_empty(), "said once");
+    assert_eq!(sys(&b), (10_600, -1));
+    let critical = BatteryStatus { level: BatteryLevel::Critical, ..low };
+    let texts = b.battery(&critical);
+    assert!(
+        matches!(&texts[0], MavMessage::STATUSTEXT(t) if t.severity == mav::MavSeverity::MAV_SEVERITY_CRITICAL)
+    );
+}

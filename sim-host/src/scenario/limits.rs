@@ -3,7 +3,7 @@
 //! the command-line options that override a scenario value (`render --blur`, `--noise`, `--light-gain`,
 //! `--exposure-time`, `fly --duration`) go through the same validation, so one quantity has one limit.
 //! The flight code's parameters (`[vehicle]`, `[gains]`, `[estimator]`, `[trajectory]`, `[failsafe]`, `[downlink]`,
-//! `[rc]`) are
+//! `[rc]`, `[battery]`) are
 //! declared in control-core (`control_core::declare`, docs/parameters.md); these are the simulator's own.
 //! `sim-host params` prints both tables.
 //!
@@ -227,6 +227,16 @@ limits! {
     FAULT_DEGRADED_THRUST = "faults.motor_degradation.thrust_scale" closed [0, 1] "";
     FAULT_LOST_MOTOR = "faults.motor_loss.motor" closed [1, 4] "";
 
+    BATTERY_MODEL_CELLS = "battery_model.cells" closed [1, 14] "";
+    BATTERY_MODEL_CAPACITY = "battery_model.capacity_mah" above [0, 1e6] "mAh";
+    BATTERY_MODEL_RESISTANCE = "battery_model.resistance_ohm" closed [0, 1] "ohm";
+    BATTERY_MODEL_EFFICIENCY = "battery_model.drive_efficiency" above [0, 1] "";
+    BATTERY_MODEL_IDLE_CURRENT = "battery_model.idle_current_a" closed [0, 50] "A";
+    BATTERY_MODEL_CHARGE = "battery_model.initial_charge" closed [0, 1] "";
+    BATTERY_MODEL_RATE = "battery_model.rate_hz" closed [1, 1000] "Hz";
+    BATTERY_MODEL_VOLTAGE_NOISE = "battery_model.voltage_noise_v" closed [0, 5] "V";
+    BATTERY_MODEL_CURRENT_NOISE = "battery_model.current_noise_a" closed [0, 50] "A";
+
     TRANSMITTER_FRAME_RATE = "transmitter.frame_rate_hz" closed [10, 1000] "Hz";
     TRANSMITTER_AT = "transmitter.script.at_s" closed [0, FAULT_TIME_MAX_S] "s";
     TRANSMITTER_ROLL = "transmitter.script.roll" closed [-1, 1] "";
@@ -296,7 +306,7 @@ mod tests {
 
     /// Sections that hold the flight code's parameters, declared in control-core.
     const FLIGHT_SECTIONS: &[&str] =
-        &["vehicle", "gains", "estimator", "trajectory", "failsafe", "downlink", "rc"];
+        &["vehicle", "gains", "estimator", "trajectory", "failsafe", "downlink", "rc", "battery"];
 
     /// A numeric leaf of the scenario's TOML: its path (keys and indices) and its declared name.
     struct Leaf {

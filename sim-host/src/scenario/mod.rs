@@ -483,6 +483,12 @@ pub struct Scenario {
     /// The pilot's transmitter as the flight code uses it (`control_core::pilot`).
     #[serde(default)]
     pub rc: RcParams,
+    /// The flight battery's monitoring in the flight code (`control_core::battery`).
+    #[serde(default)]
+    pub battery: control_core::battery::BatteryParams,
+    /// The simulated flight battery (its sag, its charge, the readings).
+    #[serde(default)]
+    pub battery_model: crate::power::BatteryModelConfig,
     /// The simulated pilot: whether the vehicle has an RC receiver, and what the transmitter does when.
     #[serde(default)]
     pub transmitter: crate::transmitter::TransmitterConfig,
@@ -549,6 +555,7 @@ impl Scenario {
             failsafe: self.failsafe,
             downlink: self.downlink,
             rc: self.rc,
+            battery: self.battery,
             home_m: self.model.start_position_m.map(|v| v as f32),
         }
     }

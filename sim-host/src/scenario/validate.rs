@@ -186,6 +186,18 @@ impl Scenario {
                 | FaultKind::RcLoss => {}
             }
         }
+        let b = &self.battery_model;
+        v.extend([
+            r(BATTERY_MODEL_CELLS, &[b.cells as f64]),
+            r(BATTERY_MODEL_CAPACITY, &[b.capacity_mah]),
+            r(BATTERY_MODEL_RESISTANCE, &[b.resistance_ohm]),
+            r(BATTERY_MODEL_EFFICIENCY, &[b.drive_efficiency]),
+            r(BATTERY_MODEL_IDLE_CURRENT, &[b.idle_current_a]),
+            r(BATTERY_MODEL_CHARGE, &[b.initial_charge]),
+            r(BATTERY_MODEL_RATE, &[b.rate_hz]),
+            r(BATTERY_MODEL_VOLTAGE_NOISE, &[b.voltage_noise_v]),
+            r(BATTERY_MODEL_CURRENT_NOISE, &[b.current_noise_a]),
+        ]);
         let tx = &self.transmitter;
         v.push(r(TRANSMITTER_FRAME_RATE, &[tx.frame_rate_hz]));
         for (k, e) in tx.script.iter().enumerate() {

@@ -395,6 +395,7 @@ fn station_loop(
                     }
                 }
                 Downlink::CommandAck(r) => stats.command_acks.push(format!("{t:.2} s: {r:?}")),
+                Downlink::Battery(b) => stats.vehicle_battery = Some(b),
                 Downlink::ConfigAck(a) => {
                     stats.config_acks.push(format!("{t:.2} s: {:08x} {:?}", a.crc32, a.outcome))
                 }

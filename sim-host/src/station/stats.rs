@@ -37,6 +37,8 @@ pub struct StationStats {
     pub command_acks: Vec<String>,
     /// Answers to configuration uploads (what became of each).
     pub config_acks: Vec<String>,
+    /// The vehicle's last battery report.
+    pub vehicle_battery: Option<control_core::battery::BatteryStatus>,
     /// Time-sync answers received.
     pub time_sync_answers: u64,
     /// Of those, refused by the clock sync: arriving before their request left, or slower than its limit.
