@@ -107,6 +107,11 @@ impl DshotOutput {
         self.period_ticks - 1
     }
 
+    /// The rotor speed of full throttle from now on (rad/s; a new configuration's `motor_speed_max_rad_s`).
+    pub fn set_max_rad_s(&mut self, max_rad_s: f32) {
+        self.max_rad_s = max_rad_s;
+    }
+
     /// Whether the arming time has passed (the frames follow the commands).
     pub fn armed_escs(&self) -> bool {
         self.stop_frames_left == 0
@@ -229,6 +234,10 @@ mod tests {
         assert_eq!(f, [NormalFrame::new(1000, false).unwrap().inner(); 4]);
         // Disabled motors, or a stop request, give motor stop.
         assert_eq!(out.frames(spin, false), [0; 4]);
+        // Another top speed: the same rotor speed is half the throttle.
+        out.set_max_rad_s(2000.0);
+        assert_eq!(out.frames(spin, true), [NormalFrame::new(500, false).unwrap().inner(); 4]);
+        out.set_max_rad_s(1000.0);
         assert_eq!(out.frames([0.0, 500.0, f32::NAN, 500.0], true)[0], 0);
         assert_eq!(out.frames([0.0, 500.0, f32::NAN, 500.0], true)[2], 0);
         // Bidirectional: the inverted checksum in every frame, stop included.

@@ -182,6 +182,10 @@ pub struct RunStats {
     pub radio: &'static str,
     /// The radio's state and counters.
     pub auth: protocol::LinkStatus,
+    /// Configuration pieces refused for an unauthenticated link, and configuration uploads applied.
+    pub config_refused: u32,
+    /// See [`RunStats::config_refused`].
+    pub configs_applied: u32,
     /// The flight mode after the last step.
     pub mode: control_core::FlightMode,
     /// The link decoder's counters.
@@ -378,219 +382,91 @@ fn start_rc_uart(serial: Serial<pac::USART3>, nvic: &mut pac::NVIC) {
     }
 }
 
+/// The boards' shared methods (the IMU, the RNG, the log line); the rest is the board's own (`board_*.rs`).
 #[cfg(not(feature = "qemu"))]
-mod variant {
-    use super::*;
-    use core::cell::RefCell;
-    use drivers::SensorRotation;
-    use drivers::blctrl::{BlCtrl, DEFAULT_ADDRESSES};
-    use drivers::hmc5883l::Hmc5883l;
-    use drivers::mpu6000::Mpu6000;
-    use embedded_hal_bus::i2c::RefCellDevice;
-    use embedded_hal_bus::spi::{ExclusiveDevice, NoDelay};
-    use stm32f4xx_hal::adc::{Adc, config::AdcConfig, config::SampleTime};
-    use stm32f4xx_hal::gpio::{Analog, Output, PA4, PC1};
-    use stm32f4xx_hal::i2c::{I2c, Mode as I2cMode};
-    use stm32f4xx_hal::pac::{I2C1, SPI1};
-    use stm32f4xx_hal::rcc::Config;
-    use stm32f4xx_hal::spi::{Mode, Phase, Polarity, Spi};
-
-    type SharedI2c = RefCellDevice<'static, I2c<I2C1>>;
-
-    pub struct Hardware {
-        imu: Mpu6000<ExclusiveDevice<Spi<SPI1>, PA4<Output>, NoDelay>>,
-        mag: Option<Hmc5883l<SharedI2c>>,
-        esc: BlCtrl<SharedI2c>,
-        rng: pac::RNG,
-        adc: Adc<pac::ADC1>,
-        vbat: PC1<Analog>,
+impl Board {
+    /// No synthetic frames on the board: its frames come over the radio.
+    pub fn synthetic_frames(&mut self, _time_us: u64) -> [Option<protocol::VisionMeasurement>; 2] {
+        [None; 2]
     }
 
-    /// The battery voltage's divider on PC1 (10 k over 1 k: 11, Betaflight's `vbat_scale` 110).
-    pub const VBAT_SCALE: f32 = 11.0;
-    /// The ADC's reference (V) and full scale.
-    const ADC_VREF: f32 = 3.3;
-    const ADC_FULL_SCALE: f32 = 4095.0;
+    /// A fresh nonce for the link's handshake from the hardware RNG (RM0090, 24: 32 bits per 40 RNG
+    /// clocks). After a seed or clock error (counted) the RNG is restarted; should it still fail, the nonce
+    /// is the previous one's SHA-256 with the cycle counter and a count, unique but not unpredictable.
+    pub fn nonce(&mut self) -> Nonce {
+        let mut n = [0u8; 16];
+        let mut ok = true;
+        for chunk in n.chunks_mut(4) {
+            match self.random_word() {
+                Some(w) => chunk.copy_from_slice(&w.to_le_bytes()),
+                None => ok = false,
+            }
+        }
+        if !ok {
+            self.rng_errors = self.rng_errors.saturating_add(1);
+            n = self.fallback_nonce();
+        }
+        self.nonces = self.nonces.wrapping_add(1);
+        n
+    }
 
-    impl Board {
-        /// Clocks, pins, sensors, speed controllers, UART, tick (counting from here; the control loop runs on it
-        /// once `sched::start` hands it over).
-        pub fn init() -> Self {
-            let (Some(dp), Some(mut cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
-                halt("peripherals already taken")
-            };
-            // The 48 MHz clock feeds the hardware RNG (the link's handshake nonces).
-            let mut rcc = dp.RCC.freeze(
-                Config::hse(8.MHz()).sysclk(168.MHz()).pclk1(42.MHz()).pclk2(84.MHz()).require_pll48clk(),
-            );
-            <pac::RNG as stm32f4xx_hal::rcc::Enable>::enable(&mut rcc);
-            dp.RNG.cr().modify(|_, w| w.rngen().set_bit());
-            let gpioa = dp.GPIOA.split(&mut rcc);
-            let gpiob = dp.GPIOB.split(&mut rcc);
-            let gpioc = dp.GPIOC.split(&mut rcc);
-            let mut delay = dp.TIM5.delay_us(&mut rcc);
-            // The battery's voltage divider on PC1, read by ADC1.
-            let adc = Adc::new(dp.ADC1, true, AdcConfig::default(), &mut rcc);
-            let vbat = gpioc.pc1.into_analog();
-            // IMU on SPI1, mode 3, 1 MHz (the MPU-6000's limit for its configuration registers).
-            let spi = dp.SPI1.spi(
-                (Some(gpioa.pa5), Some(gpioa.pa6), Some(gpioa.pa7)),
-                Mode { polarity: Polarity::IdleHigh, phase: Phase::CaptureOnSecondTransition },
-                1.MHz(),
-                &mut rcc,
-            );
-            let cs = gpioa.pa4.into_push_pull_output_in_state(stm32f4xx_hal::gpio::PinState::High);
-            let Ok(dev) = ExclusiveDevice::new_no_delay(spi, cs);
-            let mut imu = Mpu6000::new(dev, SensorRotation::IDENTITY);
-            if let Err(e) = imu.init(&mut delay) {
-                defmt::error!("IMU init failed: {}", defmt::Debug2Format(&e));
-                halt("no IMU");
-            }
-            // Magnetometer and speed controllers share I2C1.
-            let i2c = dp.I2C1.i2c(
-                (gpiob.pb8, gpiob.pb9),
-                I2cMode::Fast { frequency: 400.kHz(), duty_cycle: stm32f4xx_hal::i2c::DutyCycle::Ratio2to1 },
-                &mut rcc,
-            );
-            let Some(bus) = cortex_m::singleton!(: RefCell<I2c<I2C1>> = RefCell::new(i2c)) else {
-                halt("i2c bus")
-            };
-            let mut esc = BlCtrl::new(RefCellDevice::new(bus), DEFAULT_ADDRESSES);
-            if esc.stop().is_err() {
-                defmt::warn!("a speed controller did not answer");
-            }
-            let mut mag = Hmc5883l::new(RefCellDevice::new(bus), SensorRotation::IDENTITY);
-            let mag = match mag.init() {
-                Ok(()) => Some(mag),
-                Err(e) => {
-                    defmt::warn!("no magnetometer: {}", defmt::Debug2Format(&e));
-                    None
+    fn random_word(&mut self) -> Option<u32> {
+        let rng = &self.hw.rng;
+        for _ in 0..2 {
+            for _ in 0..10_000 {
+                let sr = rng.sr().read();
+                if sr.secs().bit() || sr.cecs().bit() {
+                    break;
                 }
-            };
-            let Ok(serial) = Serial::new(
-                dp.USART1,
-                (gpioa.pa9, gpioa.pa10),
-                SerialConfig::default().baudrate(BAUD.bps()),
-                &mut rcc,
-            ) else {
-                halt("uart")
-            };
-            start_uart(serial, &mut cp.NVIC);
-            // The RC receiver (CRSF: ExpressLRS, TBS Crossfire) on USART3, PB10 TX, PB11 RX.
-            match Serial::new(
-                dp.USART3,
-                (gpiob.pb10, gpiob.pb11),
-                SerialConfig::default().baudrate(drivers::crsf::BAUD.bps()),
-                &mut rcc,
-            ) {
-                Ok(rc) => start_rc_uart(rc, &mut cp.NVIC),
-                Err(_) => defmt::warn!("the RC receiver's UART did not start: no RC"),
-            }
-            cp.DCB.enable_trace();
-            cp.DWT.enable_cycle_counter();
-            start_tick(cp.SYST, &mut cp.SCB, rcc.clocks.sysclk().raw() / 1000);
-            let flash = crate::config::Flash(stm32f4xx_hal::flash::LockedFlash::new(dp.FLASH));
-            Board {
-                flash: Some(flash),
-                nonces: 0,
-                rng_errors: 0,
-                hw: Hardware { imu, mag, esc, rng: dp.RNG, adc, vbat },
-            }
-        }
-
-        /// No synthetic frames on the board: its frames come over the radio.
-        pub fn synthetic_frames(&mut self, _time_us: u64) -> [Option<protocol::VisionMeasurement>; 2] {
-            [None; 2]
-        }
-
-        /// A fresh nonce for the link's handshake from the hardware RNG (RM0090, 24: 32 bits per 40 RNG
-        /// clocks). After a seed or clock error (counted) the RNG is restarted; should it still fail, the nonce
-        /// is the previous one's SHA-256 with the cycle counter and a count, unique but not unpredictable.
-        pub fn nonce(&mut self) -> Nonce {
-            let mut n = [0u8; 16];
-            let mut ok = true;
-            for chunk in n.chunks_mut(4) {
-                match self.random_word() {
-                    Some(w) => chunk.copy_from_slice(&w.to_le_bytes()),
-                    None => ok = false,
+                if sr.drdy().bit() {
+                    return Some(rng.dr().read().rndata().bits());
                 }
             }
-            if !ok {
-                self.rng_errors = self.rng_errors.saturating_add(1);
-                n = self.fallback_nonce();
-            }
-            self.nonces = self.nonces.wrapping_add(1);
-            n
+            // Restart after an error (RM0090, 24.3.2): clear the flags, disable, enable.
+            rng.sr().modify(|_, w| w.seis().clear_bit().ceis().clear_bit());
+            rng.cr().modify(|_, w| w.rngen().clear_bit());
+            rng.cr().modify(|_, w| w.rngen().set_bit());
         }
+        None
+    }
 
-        fn random_word(&mut self) -> Option<u32> {
-            let rng = &self.hw.rng;
-            for _ in 0..2 {
-                for _ in 0..10_000 {
-                    let sr = rng.sr().read();
-                    if sr.secs().bit() || sr.cecs().bit() {
-                        break;
-                    }
-                    if sr.drdy().bit() {
-                        return Some(rng.dr().read().rndata().bits());
-                    }
-                }
-                // Restart after an error (RM0090, 24.3.2): clear the flags, disable, enable.
-                rng.sr().modify(|_, w| w.seis().clear_bit().ceis().clear_bit());
-                rng.cr().modify(|_, w| w.rngen().clear_bit());
-                rng.cr().modify(|_, w| w.rngen().set_bit());
-            }
-            None
-        }
+    /// One IMU sample stamped `time_us`.
+    pub fn read_imu(&mut self, time_us: u64) -> Option<ImuSample> {
+        let r = self.hw.imu.read_sample().ok()?;
+        Some(ImuSample { time_us, gyro_rad_s: r.gyro_rad_s, accel_m_s2: r.accel_m_s2 })
+    }
 
-        /// One IMU sample stamped `time_us`.
-        pub fn read_imu(&mut self, time_us: u64) -> Option<ImuSample> {
-            let r = self.hw.imu.read_sample().ok()?;
-            Some(ImuSample { time_us, gyro_rad_s: r.gyro_rad_s, accel_m_s2: r.accel_m_s2 })
-        }
-
-        /// The magnetometer's field (body axes), if present and readable.
-        pub fn read_mag(&mut self) -> Option<Vec3> {
-            self.hw.mag.as_mut()?.read_field().ok().map(Vec3::from_array)
-        }
-
-        /// The battery's voltage (no current sensor on this board).
-        pub fn read_battery(&mut self) -> Option<control_core::battery::BatteryReading> {
-            let hw = &mut self.hw;
-            let raw = hw.adc.convert(&hw.vbat, SampleTime::Cycles_480);
-            let voltage_v = raw as f32 / ADC_FULL_SCALE * ADC_VREF * VBAT_SCALE;
-            Some(control_core::battery::BatteryReading { voltage_v, current_a: None })
-        }
-
-        /// Commands the four speed controllers.
-        pub fn set_motors(&mut self, cmd: [u8; 4]) -> Result<(), ()> {
-            self.hw.esc.set(cmd).map_err(|_| ())
-        }
-
-        /// Periodic log line.
-        pub fn after_step(&mut self, steps: u32, s: &RunStats) {
-            if steps.is_multiple_of(2500) {
-                defmt::info!(
-                    "steps {} mode {} step max {} cycles mean {} tick latency max {} cycles solves {} link ok {} errors {} radio {} auth ok {} refused {} arm refused {} rng errors {} rc bytes lost {}",
-                    s.steps,
-                    s.mode,
-                    s.max_cost,
-                    (s.sum_cost / s.steps.max(1) as u64) as u32,
-                    s.tick_latency_max,
-                    crate::background::SOLVES.load(Ordering::Relaxed),
-                    s.link.ok,
-                    s.link.errors(),
-                    s.radio,
-                    s.auth.auth.ok,
-                    s.auth.auth.refused(),
-                    s.auth.arm_refused,
-                    self.rng_errors,
-                    self.rc_overflow()
-                );
-            }
+    /// Periodic log line.
+    pub fn after_step(&mut self, steps: u32, s: &RunStats) {
+        if steps.is_multiple_of(2500) {
+            defmt::info!(
+                "steps {} mode {} step max {} cycles mean {} tick latency max {} cycles solves {} link ok {} errors {} radio {} auth ok {} refused {} arm refused {} rng errors {} rc bytes lost {}",
+                s.steps,
+                s.mode,
+                s.max_cost,
+                (s.sum_cost / s.steps.max(1) as u64) as u32,
+                s.tick_latency_max,
+                crate::background::SOLVES.load(Ordering::Relaxed),
+                s.link.ok,
+                s.link.errors(),
+                s.radio,
+                s.auth.auth.ok,
+                s.auth.auth.refused(),
+                s.auth.arm_refused,
+                self.rng_errors,
+                self.rc_overflow()
+            );
         }
     }
 }
+
+#[cfg(all(not(feature = "qemu"), not(feature = "matek-f405-se")))]
+#[path = "board_wlq.rs"]
+mod variant;
+
+#[cfg(all(not(feature = "qemu"), feature = "matek-f405-se"))]
+#[path = "board_matek.rs"]
+mod variant;
 
 #[cfg(feature = "qemu")]
 mod variant {
@@ -626,10 +502,11 @@ mod variant {
     impl Hardware {
         fn new() -> Self {
             let v = flight_core::VisionConfig::default();
-            // Frames across the flight envelope (distance 1.0-1.56 m, along the line, yaw within 8 deg, roll and
-            // pitch within 0.8 deg), each
-            // edge point scattered by up to 0.5 px as a detector's are (a fixed pseudo-random sequence). The
-            // firmware in the loop takes its frames from the simulator.
+            // Frames across the flight envelope: distance 1.0-1.56 m, up to 1.6 m either side of the line's
+            // centre (so that some see one end only, as during the sweep: their solves take the longest, up
+            // to about 470 k instructions), yaw within 8 deg, roll and pitch within 0.8 deg, each edge point
+            // scattered by up to 0.5 px as a detector's are (a fixed pseudo-random sequence). The firmware in
+            // the loop takes its frames from the simulator.
             let frames = core::array::from_fn(|k| {
                 if cfg!(feature = "fil") {
                     return None;
@@ -644,7 +521,7 @@ mod variant {
                     .mul_mat(&v.mount.body_from_camera)
                     .transpose();
                 let c =
-                    v.target.center() + Vec3::new(0.15 * (kf - 3.5), 1.0 + 0.08 * kf, 0.1 * (kf % 3.0 - 1.0));
+                    v.target.center() + Vec3::new(0.45 * (kf - 3.5), 1.0 + 0.08 * kf, 0.1 * (kf % 3.0 - 1.0));
                 let mut seed = 0x9E37_79B9u32.wrapping_mul(k as u32 + 1);
                 let noise = move || {
                     seed ^= seed << 13;
@@ -740,8 +617,8 @@ mod variant {
 
         /// The synthetic forward camera: two frames of the line every 34 ms once the estimator has aligned (as
         /// if the second camera frame of a pair arrived with the first), captured 30 ms before they arrive, so
-        /// that two pose solves run back to back as background work, over more than one tick, while the ticks
-        /// go on.
+        /// that two pose solves run back to back as background work, over more than one tick and often over a
+        /// control step, while the ticks and the steps go on.
         pub fn synthetic_frames(&mut self, time_us: u64) -> [Option<protocol::VisionMeasurement>; 2] {
             if cfg!(feature = "fil")
                 || time_us < SYNTHETIC_FRAMES_FROM_US
@@ -783,7 +660,7 @@ mod variant {
         }
 
         /// No speed controllers (QEMU has no I2C).
-        pub fn set_motors(&mut self, _cmd: [u8; 4]) -> Result<(), ()> {
+        pub fn set_motors(&mut self, _speeds_rad_s: [f32; 4], _max_rad_s: f32) -> Result<(), ()> {
             Ok(())
         }
 
@@ -819,7 +696,7 @@ mod variant {
                 instructions(crate::background::SOLVE_CYCLES_MAX.load(Ordering::Relaxed) as u64),
             );
             cortex_m_semihosting::hprintln!(
-                "loop ran: steps={} ticks={} imu_errors={} motor_errors={} imu_dropped={} step_cycles_max={} step_cycles_mean={} background_cycles_max={} background_cycles_total={} mode={:?} link_ok={} link_errors={} radio=\"{}\" auth_ok={} auth_refused={} arm_refused={} link_cycles_max={} rng_errors={} rc_overflow={}",
+                "loop ran: steps={} ticks={} imu_errors={} motor_errors={} imu_dropped={} step_cycles_max={} step_cycles_mean={} background_cycles_max={} background_cycles_total={} mode={:?} link_ok={} link_errors={} radio=\"{}\" auth_ok={} auth_refused={} arm_refused={} config_refused={} configs_applied={} link_cycles_max={} rng_errors={} rc_overflow={}",
                 s.steps,
                 TICKS.load(Ordering::Acquire),
                 s.imu_errors,
@@ -836,6 +713,8 @@ mod variant {
                 s.auth.auth.ok,
                 s.auth.auth.refused(),
                 s.auth.arm_refused,
+                s.config_refused,
+                s.configs_applied,
                 s.max_link,
                 self.rng_errors,
                 self.rc_overflow()

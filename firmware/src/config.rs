@@ -11,7 +11,7 @@
 //!   until QEMU exits.
 use flight_core::param_store::{LoadReport, ParamStore};
 use flight_core::{FlightConfig, FlightStack};
-use protocol::{ConfigAck, ConfigChunk, ConfigOutcome, ConfigRefusal};
+use protocol::{ConfigAck, ConfigChunk, ConfigOutcome};
 
 /// The configuration at boot: the stored one, or the built-in one (the paper's) when the store holds none,
 /// with what the store said.
@@ -43,11 +43,8 @@ pub fn take_piece(
     on_new: impl FnOnce(&FlightConfig),
 ) -> Option<ConfigAck> {
     let (crc32, result) = upload.push(chunk)?;
-    let outcome = match result {
+    let outcome = match flight_core::config_upload::take_when_disarmed(result, stack.control().mode()) {
         Err(r) => ConfigOutcome::Refused(r),
-        Ok(_) if stack.control().mode() != control_core::FlightMode::Disarmed => {
-            ConfigOutcome::Refused(ConfigRefusal::Armed)
-        }
         Ok(cfg) => {
             on_new(&cfg);
             rebuild(stack, cfg);

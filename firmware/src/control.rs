@@ -10,7 +10,6 @@ use crate::background;
 use crate::board::{self, Board, RunStats};
 use crate::link;
 use control_core::estimator::ImuSample;
-use drivers::blctrl::command_for_speed;
 use flight_core::config_upload::ConfigUpload;
 use flight_core::param_store::ParamStore;
 use flight_core::radio::{Incoming, Security, VehicleRadio};
@@ -113,10 +112,13 @@ impl Flight {
                             rc.set_channel_map(cfg.control.rc.channel_map);
                             background::set_vision(cfg.vision);
                         });
-                    if let Some(ack) = ack
-                        && !link::send(board, &mut self.radio, &Downlink::ConfigAck(ack))
-                    {
-                        stats.downlink_dropped += 1;
+                    if let Some(ack) = ack {
+                        if matches!(ack.outcome, protocol::ConfigOutcome::Applied { .. }) {
+                            stats.configs_applied += 1;
+                        }
+                        if !link::send(board, &mut self.radio, &Downlink::ConfigAck(ack)) {
+                            stats.downlink_dropped += 1;
+                        }
                     }
                 }
                 Some(Incoming::Message(msg)) => {
@@ -163,8 +165,7 @@ impl Flight {
         self.imu.clear();
         // The frames this step queued, to the background work.
         background::hand_over_jobs(self.stack);
-        let cmd = out.control.motors_rad_s.map(|w| command_for_speed(w, self.motor_max));
-        if board.set_motors(cmd).is_err() {
+        if board.set_motors(out.control.motors_rad_s, self.motor_max).is_err() {
             stats.motor_errors += 1;
         }
         let every = out.telemetry_every;
@@ -194,6 +195,7 @@ impl Flight {
         stats.link = radio.framing();
         stats.radio = radio.describe();
         stats.auth = radio.status();
+        stats.config_refused = radio.config_refused();
         stats.vision = out.vision;
         board.after_step(self.downlinks.steps(), stats);
     }

@@ -29,6 +29,8 @@ mod board;
 mod config;
 #[cfg(not(feature = "fil"))]
 mod control;
+#[cfg(all(feature = "matek-f405-se", not(feature = "qemu")))]
+mod dshot_out;
 #[cfg(feature = "fil")]
 mod fil;
 #[cfg(feature = "fil")]

@@ -41,8 +41,14 @@ unsafe fn HardFault(ef: &cortex_m_rt::ExceptionFrame) -> ! {
     }
 }
 
+/// DShot boards: the outputs low and the timers stopped (a DShot ESC stops its motor when frames stop).
+#[cfg(all(feature = "matek-f405-se", not(feature = "qemu")))]
+fn stop_motors() {
+    crate::dshot_out::stop_all();
+}
+
 /// Writes 0 to each BL-Ctrl address on I2C1, register by register, never waiting more than a bounded count.
-#[cfg(not(feature = "qemu"))]
+#[cfg(all(not(feature = "qemu"), not(feature = "matek-f405-se")))]
 #[allow(unsafe_code)]
 fn stop_motors() {
     use stm32f4xx_hal::pac;

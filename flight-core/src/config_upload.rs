@@ -117,9 +117,40 @@ impl ConfigUpload {
     }
 }
 
+/// What becomes of a whole upload ([`ConfigUpload::push`]'s outcome) on a vehicle in `mode`: taken only while
+/// disarmed, since it rebuilds the flight stack (the estimator starts afresh) and storing it stalls the core for
+/// a flash erase; refused as [`ConfigRefusal::Armed`] in every other mode, motors-off emergency included.
+pub fn take_when_disarmed(
+    outcome: Result<FlightConfig, ConfigRefusal>,
+    mode: control_core::FlightMode,
+) -> Result<FlightConfig, ConfigRefusal> {
+    let cfg = outcome?;
+    if mode != control_core::FlightMode::Disarmed {
+        return Err(ConfigRefusal::Armed);
+    }
+    Ok(cfg)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_whole_upload_is_taken_only_while_disarmed() {
+        use control_core::FlightMode as M;
+        let cfg = FlightConfig::paper();
+        assert!(take_when_disarmed(Ok(cfg), M::Disarmed).is_ok());
+        for m in
+            [M::Armed, M::TakeOff, M::Hover, M::Tracking, M::VisionHold, M::Landing, M::Emergency, M::Manual]
+        {
+            assert_eq!(take_when_disarmed(Ok(cfg), m).err(), Some(ConfigRefusal::Armed), "{m:?}");
+        }
+        // A refusal of the upload itself stays what it is.
+        assert_eq!(
+            take_when_disarmed(Err(ConfigRefusal::Damaged), M::Hover).err(),
+            Some(ConfigRefusal::Damaged)
+        );
+    }
 
     fn other() -> FlightConfig {
         let mut c = FlightConfig::paper();

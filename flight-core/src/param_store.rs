@@ -160,7 +160,12 @@ impl<F: NorFlash> ParamStore<F> {
         if le32(&head[24..28]) != COMMIT {
             return Err(SlotProblem::NotCommitted);
         }
-        let p: FlightConfig = postcard::from_bytes(&body[..len]).map_err(|_| SlotProblem::Decode)?;
+        // `take_from_bytes` with nothing left over, as the configuration upload decodes (one decoder in the
+        // firmware, not two).
+        let p: FlightConfig = match postcard::take_from_bytes(&body[..len]) {
+            Ok((p, [])) => p,
+            _ => return Err(SlotProblem::Decode),
+        };
         FlightStack::check_config(&p).map_err(|_| SlotProblem::Invalid)?;
         Ok((p, le32(&head[16..20])))
     }

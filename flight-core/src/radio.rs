@@ -9,14 +9,15 @@
 //!   fails is dropped and counted by reason.
 //! - **Development** (no key): unauthenticated frames (anyone on the radio may command the vehicle); an
 //!   `Arm` command is refused ([`control_core::Refusal::Unauthenticated`], acknowledged and counted) unless the
-//!   firmware was built with the `unauthenticated-link` feature ([`Security::Development`]'s `allow_arming`).
+//!   firmware was built with the `unauthenticated-link` feature ([`Security::Development`]'s `allow_arming`);
+//!   so is a configuration upload (`ConfigRefusal::Unauthenticated`), which changes what the vehicle flies.
 //!
 //! [`VehicleRadio::status_due`] gives, once a second, the [`LinkStatus`] the vehicle sends down: the mode and
 //! the counters, which the station shows and logs.
 use control_core::{Command, CommandResult, Refusal};
 use protocol::auth::{AuthCounters, Key, Nonce, Opened, Role, SealError, SecureLink};
 use protocol::frame::{DecodeCounters, Decoder, MAX_FRAME, encode};
-use protocol::{Downlink, LinkStatus, Uplink};
+use protocol::{ConfigAck, ConfigOutcome, ConfigRefusal, Downlink, LinkStatus, Uplink};
 
 /// How often the vehicle reports its link's state ([`Downlink::LinkStatus`], us).
 pub const STATUS_PERIOD_US: u64 = 1_000_000;
@@ -29,7 +30,7 @@ pub enum Security {
     /// Unauthenticated: the development mode. `allow_arming` only in a firmware built with the
     /// `unauthenticated-link` feature.
     Development {
-        /// Whether an `Arm` command is carried out.
+        /// Whether an `Arm` command is carried out (and a configuration upload taken).
         allow_arming: bool,
     },
 }
@@ -62,6 +63,7 @@ pub struct VehicleRadio {
     link: Option<SecureLink>,
     allow_arming: bool,
     arm_refused: u32,
+    config_refused: u32,
     not_sent: [u32; 2],
     next_status_us: u64,
 }
@@ -78,6 +80,7 @@ impl VehicleRadio {
             link,
             allow_arming,
             arm_refused: 0,
+            config_refused: 0,
             not_sent: [0; 2],
             next_status_us: 0,
         }
@@ -137,6 +140,24 @@ impl VehicleRadio {
                 Err(_) => Incoming::Refused,
             });
         }
+        // A configuration upload changes what the vehicle flies, as an `Arm` starts it: refused alike. The
+        // first piece of each try is answered (the station sends the whole upload again when it hears nothing).
+        if let Uplink::Config(c) = msg
+            && !self.allow_arming
+        {
+            self.config_refused = self.config_refused.saturating_add(1);
+            if c.offset != 0 {
+                return Some(Incoming::Refused);
+            }
+            let ack = Downlink::ConfigAck(ConfigAck {
+                crc32: c.crc32,
+                outcome: ConfigOutcome::Refused(ConfigRefusal::Unauthenticated),
+            });
+            return Some(match encode(&ack, reply) {
+                Ok(f) => Incoming::Reply(f.len()),
+                Err(_) => Incoming::Refused,
+            });
+        }
         Some(Incoming::Message(msg))
     }
 
@@ -175,6 +196,12 @@ impl VehicleRadio {
     /// The framing's counters.
     pub fn framing(&self) -> DecodeCounters {
         self.decoder.counters()
+    }
+
+    /// Configuration pieces refused because the link is not authenticated (development mode, a firmware built
+    /// without `unauthenticated-link`).
+    pub fn config_refused(&self) -> u32 {
+        self.config_refused
     }
 
     /// The link's state now.
@@ -251,6 +278,38 @@ mod tests {
         // Unauthenticated downlink frames go at once.
         assert!(allowed.ready());
         assert!(allowed.frame(&Downlink::LinkStatus(allowed.status()), &mut buf).is_ok());
+    }
+
+    #[test]
+    fn the_development_mode_refuses_configuration_uploads_unless_built_to_allow_them() {
+        let cfg = crate::FlightConfig::paper();
+        let (crc32, pieces) = crate::config_upload::chunks(&cfg).unwrap();
+        let mut buf = [0u8; MAX_FRAME];
+        let mut reply = [0u8; MAX_FRAME];
+        let frames: Vec<Vec<u8>> =
+            pieces.iter().map(|p| encode(&Uplink::Config(*p), &mut buf).unwrap().to_vec()).collect();
+        let mut r = VehicleRadio::new(Security::Development { allow_arming: false });
+        // The first piece is answered with the refusal; the others are dropped and counted.
+        let got = feed(&mut r, &frames[0], 0, &mut reply);
+        let [Incoming::Reply(n)] = got[..] else { panic!("{got:?}") };
+        assert_eq!(
+            ack_in(&reply[..n]),
+            Downlink::ConfigAck(ConfigAck {
+                crc32,
+                outcome: ConfigOutcome::Refused(ConfigRefusal::Unauthenticated)
+            })
+        );
+        for f in &frames[1..] {
+            assert_eq!(feed(&mut r, f, 0, &mut reply), [Incoming::Refused]);
+        }
+        assert_eq!(r.config_refused() as usize, frames.len());
+        assert_eq!(r.status().arm_refused, 0, "not counted as an Arm");
+        // Built to allow it, the pieces pass to the caller's assembler.
+        let mut allowed = VehicleRadio::new(Security::Development { allow_arming: true });
+        for (f, p) in frames.iter().zip(&pieces) {
+            assert_eq!(feed(&mut allowed, f, 0, &mut reply), [Incoming::Message(Uplink::Config(*p))]);
+        }
+        assert_eq!(allowed.config_refused(), 0);
     }
 
     #[test]

@@ -117,6 +117,9 @@ pub enum ConfigRefusal {
     Invalid,
     /// Longer than the vehicle takes.
     TooLarge,
+    /// Sent over an unauthenticated link to a vehicle that takes no commands from one (no radio key
+    /// provisioned, and not built with `unauthenticated-link`: docs/security.md), as its `Arm` is refused.
+    Unauthenticated,
 }
 
 /// Ground station to vehicle.

@@ -70,6 +70,10 @@ enum Command {
     /// streams measured, the measurements stamped on the vehicle's clock and sent up the radio with the
     /// operator's commands.
     Station(cli::station::StationArgs),
+    /// Upload a scenario's flight configuration (parameters, forward camera, line) to a vehicle on the ground
+    /// over its radio: applied at once and stored in its flash, loaded at each boot (docs/firmware.md,
+    /// "Parameters in flash").
+    Configure(cli::configure::ConfigureArgs),
     /// Make a new radio key (32 random bytes, mode 0600) for `station --key` and the vehicle
     /// (docs/security.md); an existing file is never overwritten.
     Keygen(KeygenArgs),
@@ -103,6 +107,7 @@ fn main() -> ExitCode {
         Command::Vision(VisionCommand::Flow(a)) => vision_flow(a),
         Command::Fly(a) => fly(a),
         Command::Station(a) => cli::station::station(a),
+        Command::Configure(a) => cli::configure::configure(a),
         Command::Keygen(a) => sim_host::link_key::keygen(&a.out).map(|()| {
             eprintln!(
                 "wrote the radio key {} (mode 0600): give it to the station and the vehicle",

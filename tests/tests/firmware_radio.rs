@@ -67,6 +67,27 @@ static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
 /// The firmware in QEMU, its UART connected to the returned socket; `key_image` is written at the key block's
 /// address before the firmware starts. The downlink's bytes arrive on the channel.
 fn boot(key_image: Option<&[u8]>, dir: &std::path::Path) -> (Qemu, TcpStream, mpsc::Receiver<u8>) {
+    let (qemu, stream) = boot_raw(key_image, dir);
+    let mut reader = stream.try_clone().unwrap();
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 256];
+        while let Ok(n) = reader.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            for &b in &buf[..n] {
+                if tx.send(b).is_err() {
+                    return;
+                }
+            }
+        }
+    });
+    (qemu, stream, rx)
+}
+
+/// As [`boot`], with the UART's socket as it is.
+fn boot_raw(key_image: Option<&[u8]>, dir: &std::path::Path) -> (Qemu, TcpStream) {
     let listener = TcpListener::bind("127.0.0.1:0").unwrap();
     let port = listener.local_addr().unwrap().port();
     let mut cmd = Process::new(QEMU);
@@ -115,22 +136,7 @@ fn boot(key_image: Option<&[u8]>, dir: &std::path::Path) -> (Qemu, TcpStream, mp
             break;
         }
     }
-    let mut reader = stream.try_clone().unwrap();
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        let mut buf = [0u8; 256];
-        while let Ok(n) = reader.read(&mut buf) {
-            if n == 0 {
-                break;
-            }
-            for &b in &buf[..n] {
-                if tx.send(b).is_err() {
-                    return;
-                }
-            }
-        }
-    });
-    (qemu, stream, rx)
+    (qemu, stream)
 }
 
 /// QEMU's report line (`loop ran: ...`), once the firmware printed it.
@@ -240,5 +246,86 @@ fn with_the_probe_s_key_only_its_station_commands_the_firmware() {
     eprintln!("{r}");
     assert_eq!(field(&r, "radio"), "hmac-sha256-48", "{r}");
     assert_eq!(field(&r, "auth_refused"), "2", "{r}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The socket as the station's link: reads wait at most 5 ms and read nothing when nothing came.
+fn station_link(stream: &TcpStream) -> ground_station::link::Link {
+    struct Polled(TcpStream);
+    impl Read for Polled {
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            match self.0.read(buf) {
+                Err(e)
+                    if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) =>
+                {
+                    Ok(0)
+                }
+                r => r,
+            }
+        }
+    }
+    let r = stream.try_clone().unwrap();
+    r.set_read_timeout(Some(Duration::from_millis(5))).unwrap();
+    ground_station::link::Link { reader: Box::new(Polled(r)), writer: Box::new(stream.try_clone().unwrap()) }
+}
+
+/// A configuration other than the built-in one: other gains, line and flow.
+fn other_config(k: f32) -> flight_core::FlightConfig {
+    let mut c = flight_core::FlightConfig::paper();
+    c.control.gains.altitude.a_z1 *= k;
+    c.vision.target.x_end_m = 2.0;
+    c.flow.min_quality = 0.5;
+    c
+}
+
+#[test]
+fn the_station_s_upload_is_applied_and_stored_by_the_keyed_firmware() {
+    use sim_host::station::configure::{UploadOptions, upload};
+    if !available() {
+        return;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = std::env::temp_dir().join(format!("fw-radio-config-{}", std::process::id()));
+    let (q, radio) = boot_raw(Some(&key_block(&KEY)), &dir);
+    let opts = UploadOptions { key: Some(KEY), answer_timeout_s: 5.0, tries: 3 };
+    let mut sequences = Vec::new();
+    for k in [1.5, 1.25] {
+        let up = upload(station_link(&radio), &other_config(k), &opts, |l| eprintln!("{l}")).unwrap();
+        eprintln!("{up:?}");
+        let (crc32, pieces) = flight_core::config_upload::chunks(&other_config(k)).unwrap();
+        assert_eq!((up.ack.crc32, up.pieces), (crc32, pieces.len()));
+        let protocol::ConfigOutcome::Applied { saved_sequence: Some(s) } = up.ack.outcome else {
+            panic!("applied and stored: {up:?}")
+        };
+        sequences.push(s);
+    }
+    // Stored twice: the second set under the next sequence number (the other slot).
+    assert_eq!(sequences[1], sequences[0].wrapping_add(1), "{sequences:?}");
+    let r = report(q);
+    eprintln!("{r}");
+    assert_eq!(field(&r, "configs_applied"), "2", "{r}");
+    assert_eq!(field(&r, "config_refused"), "0", "{r}");
+    assert_eq!(field(&r, "mode"), "Disarmed", "{r}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn without_a_key_the_firmware_refuses_the_station_s_upload_by_name() {
+    use sim_host::station::configure::{UploadOptions, upload};
+    if !available() {
+        return;
+    }
+    let _one = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = std::env::temp_dir().join(format!("fw-radio-config-dev-{}", std::process::id()));
+    let (q, radio) = boot_raw(None, &dir);
+    let opts = UploadOptions { key: None, answer_timeout_s: 5.0, tries: 3 };
+    let e = upload(station_link(&radio), &other_config(1.5), &opts, |l| eprintln!("{l}"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("Unauthenticated"), "{e}");
+    let r = report(q);
+    eprintln!("{r}");
+    assert_eq!(field(&r, "configs_applied"), "0", "{r}");
+    assert_ne!(field(&r, "config_refused"), "0", "{r}");
     std::fs::remove_dir_all(&dir).ok();
 }

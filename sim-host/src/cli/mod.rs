@@ -1,5 +1,6 @@
 //! The commands, one module each.
 pub(crate) mod common;
+pub(crate) mod configure;
 pub(crate) mod export;
 pub(crate) mod fly;
 pub(crate) mod import;

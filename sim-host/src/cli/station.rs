@@ -85,6 +85,18 @@ pub(crate) struct StationArgs {
     pub(crate) live: Option<String>,
 }
 
+/// The scenario's forward camera replaced by a calibration file's (camera_info YAML or Kalibr sensor.yaml).
+pub(crate) fn apply_calibration(scenario: &mut Scenario, path: &std::path::Path) -> Result<()> {
+    let cal = ground_station::calib::load(path).map_err(anyhow::Error::msg)?;
+    let c = &mut scenario.forward_camera;
+    let [fx, fy, cx, cy] = cal.intrinsics_px;
+    (c.width_px, c.height_px, c.fx_px, c.fy_px, c.cx_px, c.cy_px) =
+        (cal.camera.width, cal.camera.height, fx, fy, cx, cy);
+    c.distortion = cal.distortion;
+    (c.response, c.line_delay_s) = (cal.tone_curve, cal.line_delay_s);
+    scenario.validate().with_context(|| format!("the camera of {}", path.display()))
+}
+
 pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
     use ground_station::operator::{MissionScript, Script, parse_script};
     let mut scenario = Scenario::load(&a.scenario)?;
@@ -95,14 +107,7 @@ pub(crate) fn station(a: &StationArgs) -> Result<ExitCode> {
     inputs.push(std::path::Path::new(&a.script));
     sim_host::files::refuse_overwrites(&[out_file.as_path(), log_file.as_path()], &inputs)?;
     if let Some(path) = &a.calib_forward {
-        let cal = ground_station::calib::load(path).map_err(anyhow::Error::msg)?;
-        let c = &mut scenario.forward_camera;
-        let [fx, fy, cx, cy] = cal.intrinsics_px;
-        (c.width_px, c.height_px, c.fx_px, c.fy_px, c.cx_px, c.cy_px) =
-            (cal.camera.width, cal.camera.height, fx, fy, cx, cy);
-        c.distortion = cal.distortion;
-        (c.response, c.line_delay_s) = (cal.tone_curve, cal.line_delay_s);
-        scenario.validate().with_context(|| format!("the camera of {}", path.display()))?;
+        apply_calibration(&mut scenario, path)?;
     }
     let script = match a.script.as_str() {
         "paper" => Script::Mission(MissionScript::PAPER),

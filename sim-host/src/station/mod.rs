@@ -9,6 +9,7 @@
 //! it accepted, and the camera frames if asked (at their capture time on the vehicle's clock). The log is
 //! finished (with its end record) however the run ends, an error included.
 mod cameras;
+pub mod configure;
 mod stats;
 
 use crate::downward::GroundFlow;
