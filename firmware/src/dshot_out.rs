@@ -166,6 +166,10 @@ pub fn stop_all() {
     dp.DMA1.st(TIM3_STREAM).cr().modify(|_, w| w.en().clear_bit());
     dp.DMA1.st(TIM4_STREAM).cr().modify(|_, w| w.en().clear_bit());
     for t in [&*dp.TIM3, &*dp.TIM4] {
+        // Forced inactive (low) at once: a compare value written now would wait for the next update event,
+        // and a timer stopped in a bit's high part would hold its line high.
+        t.ccmr1_output().write(|w| w.oc1m().force_inactive().oc2m().force_inactive());
+        t.ccmr2_output().write(|w| w.oc3m().force_inactive().oc4m().force_inactive());
         for k in 0..4 {
             t.ccr(k).write(|w| w.ccr().set(0));
         }
