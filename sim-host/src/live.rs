@@ -155,16 +155,26 @@ impl LiveView {
                     .start(),
             )
             .with_context(|| format!("--live {addr}: cannot start the WebSocket server"))?;
+        // A task run on the runtime's worker: once it has run, the worker has started and lowered its priority.
+        runtime
+            .block_on(runtime.spawn(async {}))
+            .context("starting the live view's runtime worker")?;
         let addr = SocketAddr::new(sock.ip(), server.port());
         let (tx, rx) = sync_channel(QUEUE_LEN);
         let publisher = Publisher::new(ctx, scenario);
+        // The publisher says when it runs at its priority, so that every live-view thread does once this returns
+        // (a thread takes its name and priority in itself, after the spawn returns).
+        let (started_tx, started_rx) = sync_channel(1);
         let worker = std::thread::Builder::new()
             .name("live-view".into())
             .spawn(move || {
                 background_priority();
+                // The receiver waits below; if it has gone, `start` has failed and nothing waits for this.
+                started_tx.send(()).ok();
                 publisher.run(rx)
             })
             .context("starting the live view's thread")?;
+        started_rx.recv().context("the live view's thread ended as it started")?;
         Ok(Self { server, runtime, addr, tx, worker, counters: Arc::default(), max_clients: 0 })
     }
 
