@@ -156,9 +156,7 @@ impl LiveView {
             )
             .with_context(|| format!("--live {addr}: cannot start the WebSocket server"))?;
         // A task run on the runtime's worker: once it has run, the worker has started and lowered its priority.
-        runtime
-            .block_on(runtime.spawn(async {}))
-            .context("starting the live view's runtime worker")?;
+        runtime.block_on(runtime.spawn(async {})).context("starting the live view's runtime worker")?;
         let addr = SocketAddr::new(sock.ip(), server.port());
         let (tx, rx) = sync_channel(QUEUE_LEN);
         let publisher = Publisher::new(ctx, scenario);
