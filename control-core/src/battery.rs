@@ -221,5 +221,27 @@ mod tests {
         assert_eq!(q.validate().unwrap_err().field, "battery.critical_cell_v");
     }
 
+    #[test]
+    fn the_low_pass_follows_its_time_constant_and_the_levels_start_at_their_thresholds() {
+        // One reading 0.2 s after the first with the 2 s time constant moves the level a tenth of the way.
+        let mut m = BatteryMonitor::default();
+        at(&mut m, 16.0, None, 0, false);
+        at(&mut m, 14.2, None, 200_000, false);
+        let want = 4.0 + (3.55 - 4.0) * 0.1;
+        assert!((m.status().unwrap().cell_v - want).abs() < 1e-5, "{:?} against {want}", m.status());
+        // Exactly at a threshold is the level above it (dividing by the 4 cells is exact in f32).
+        let first = |v: f32| {
+            BatteryMonitor::default().update(
+                Some(BatteryReading { voltage_v: v, current_a: None }),
+                0,
+                false,
+                &p(),
+            )
+        };
+        assert_eq!(first(4.0 * p().warn_cell_v), Some(BatteryLevel::Ok));
+        assert_eq!(first(4.0 * p().critical_cell_v), Some(BatteryLevel::Low));
+        assert_eq!(first(4.0 * p().critical_cell_v - 0.01), Some(BatteryLevel::Critical));
+    }
+
     use crate::params::FlightParams as FlightParamsProbe;
 }
