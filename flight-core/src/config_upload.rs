@@ -242,6 +242,10 @@ mod tests {
             f(&mut c);
             assert_eq!(up.push(&c), Some((crc, Err(want))));
         }
+        // The largest upload there can be is taken: its first piece waits for the others.
+        let mut c = pieces[0];
+        c.total_len = MAX_UPLOAD as u16;
+        assert_eq!(up.push(&c), None);
     }
 
     #[test]
@@ -255,5 +259,13 @@ mod tests {
         }
         let got = b.iter().filter_map(|p| up.push(p)).last();
         assert_eq!(got, Some((crc_b, Ok(other()))));
+        // Half of a, then b but its first piece: a's first piece does not stand in for b's, so b waits for it.
+        for p in &a[..a.len() / 2] {
+            assert_eq!(up.push(p), None);
+        }
+        for p in &b[1..] {
+            assert_eq!(up.push(p), None);
+        }
+        assert_eq!(up.push(&b[0]), Some((crc_b, Ok(other()))));
     }
 }

@@ -268,6 +268,12 @@ mod tests {
         );
         assert_eq!(r.status().arm_refused, 1);
         assert!(!r.status().authenticated);
+        // The framing counted both frames; a damaged one is counted as such and goes no further.
+        assert_eq!((r.framing().ok, r.framing().errors()), (2, 0));
+        let mut damaged = beat.clone();
+        damaged[2] ^= 0x10;
+        assert_eq!(feed(&mut r, &damaged, 0, &mut reply), [Incoming::Refused]);
+        assert_eq!((r.framing().ok, r.framing().errors()), (2, 1));
 
         let mut allowed = VehicleRadio::new(Security::Development { allow_arming: true });
         assert_eq!(
