@@ -141,7 +141,7 @@ pub fn fly(opts: &FlyOptions, mut progress: impl FnMut(f64, f64)) -> Result<FlyR
     let live_view = match &opts.live {
         None => None,
         Some(l) => {
-            let mut view = crate::live::LiveView::start(&l.addr, &opts.scenario)?;
+            let view = crate::live::LiveView::start(&l.addr, &opts.scenario)?;
             // On stdout, for whoever connects a viewer (a port 0 was chosen here).
             println!("live view ws://{}", view.address());
             use std::io::Write as _;

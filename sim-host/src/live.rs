@@ -111,6 +111,26 @@ struct Counters {
     frames_dropped: AtomicU64,
 }
 
+/// The viewers as the server reports them when they connect and leave: the most connected at once is counted
+/// when it happens, not sampled, so a viewer that came and went between two looks is not missed.
+#[derive(Default)]
+struct ClientCounter {
+    connected: AtomicU64,
+    max: AtomicU64,
+}
+
+impl foxglove::websocket::ServerListener for ClientCounter {
+    fn on_client_connect(&self) {
+        let now = self.connected.fetch_add(1, Ordering::Relaxed) + 1;
+        self.max.fetch_max(now, Ordering::Relaxed);
+    }
+
+    fn on_client_disconnect(&self) {
+        // Never below zero, whatever the order of the server's calls.
+        self.connected.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| n.checked_sub(1)).ok();
+    }
+}
+
 /// A running live view: the server and its publishing thread.
 pub struct LiveView {
     server: foxglove::WebSocketServerHandle,
@@ -119,7 +139,7 @@ pub struct LiveView {
     tx: SyncSender<Item>,
     worker: std::thread::JoinHandle<Published>,
     counters: Arc<Counters>,
-    max_clients: u64,
+    viewers: Arc<ClientCounter>,
 }
 
 /// The simulation's side of a [`LiveView`] ([`FlightTap`]).
@@ -137,6 +157,7 @@ impl LiveView {
             .parse()
             .with_context(|| format!("--live {addr}: expected HOST:PORT, e.g. {DEFAULT_ADDR}"))?;
         let ctx = Context::new();
+        let viewers = Arc::new(ClientCounter::default());
         // The server's own runtime: one worker thread at background priority (the SDK's default runtime has a
         // worker per core at the simulation's priority).
         let runtime = tokio::runtime::Builder::new_multi_thread()
@@ -152,6 +173,7 @@ impl LiveView {
                     .name("wall-line quadrotor (sim-host)")
                     .bind(sock.ip().to_string(), sock.port())
                     .context(&ctx)
+                    .listener(viewers.clone())
                     .start(),
             )
             .with_context(|| format!("--live {addr}: cannot start the WebSocket server"))?;
@@ -173,7 +195,7 @@ impl LiveView {
             })
             .context("starting the live view's thread")?;
         started_rx.recv().context("the live view's thread ended as it started")?;
-        Ok(Self { server, runtime, addr, tx, worker, counters: Arc::default(), max_clients: 0 })
+        Ok(Self { server, runtime, addr, tx, worker, counters: Arc::default(), viewers })
     }
 
     /// The address it listens on.
@@ -182,14 +204,12 @@ impl LiveView {
     }
 
     /// Viewers connected now.
-    pub fn clients(&mut self) -> usize {
-        let n = self.server.client_count();
-        self.max_clients = self.max_clients.max(n as u64);
-        n
+    pub fn clients(&self) -> usize {
+        self.server.client_count()
     }
 
     /// Waits until a viewer connects, `stop` is set or `timeout` passes; whether one connected.
-    pub fn wait_for_client(&mut self, stop: &std::sync::atomic::AtomicBool, timeout: Duration) -> bool {
+    pub fn wait_for_client(&self, stop: &std::sync::atomic::AtomicBool, timeout: Duration) -> bool {
         let t0 = Instant::now();
         while self.clients() == 0 {
             if stop.load(Ordering::Relaxed) || t0.elapsed() > timeout {
@@ -215,9 +235,8 @@ impl LiveView {
     }
 
     /// Publishes what is queued, then stops the server. The taps must have been dropped.
-    pub fn finish(mut self) -> LiveStats {
-        self.clients();
-        let Self { server, runtime, tx, worker, counters, max_clients, .. } = self;
+    pub fn finish(self) -> LiveStats {
+        let Self { server, runtime, tx, worker, counters, viewers, .. } = self;
         drop(tx);
         // The worker ends when every sender is gone; a panic there is the publisher's bug: say so and keep
         // the flight's own results.
@@ -239,7 +258,7 @@ impl LiveView {
             record_batches_dropped: counters.record_batches_dropped.load(Ordering::Relaxed),
             frames_dropped: counters.frames_dropped.load(Ordering::Relaxed),
             messages_failed: failed,
-            max_clients,
+            max_clients: viewers.max.load(Ordering::Relaxed),
         }
     }
 }

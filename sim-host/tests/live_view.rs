@@ -483,3 +483,36 @@ fn watch(url: &str, want: &[&str]) -> Watched {
     }
     Watched { server_info, channels, received }
 }
+
+/// A viewer that watched and left before the end is counted (`max_clients`): the station does not wait for a
+/// viewer, so its count must not come from the clients still connected when it finishes (CI once saw 0 after
+/// a viewer had received every topic).
+#[cfg(feature = "live")]
+#[test]
+fn a_viewer_that_left_before_the_end_is_counted() {
+    let live =
+        sim_host::live::LiveView::start("127.0.0.1:0", &sim_host::scenario::Scenario::paper()).unwrap();
+    let mut req = format!("ws://{}", live.address()).into_client_request().unwrap();
+    req.headers_mut().insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+    let (mut ws, _) = tungstenite::connect(req).unwrap();
+    if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_ref() {
+        s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    }
+    // The server registers a client after its server info and before it advertises the channels.
+    loop {
+        if let Message::Text(t) = ws.read().unwrap() {
+            let v: Value = serde_json::from_str(&t).unwrap();
+            if v["op"] == "advertise" {
+                break;
+            }
+        }
+    }
+    // Closed: the server answers the close and lets the client go.
+    ws.close(None).unwrap();
+    while ws.read().is_ok() {}
+    drop(ws);
+    std::thread::sleep(Duration::from_millis(300));
+    // Nobody is connected at the end; the viewer that was there is still counted.
+    let stats = live.finish();
+    assert_eq!(stats.max_clients, 1);
+}
