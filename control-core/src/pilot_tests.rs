@@ -306,3 +306,92 @@ fn the_pilot_may_take_over_from_a_battery_landing() {
     h.run(2.0);
     assert_eq!(h.mode(), FlightMode::Manual);
 }
+
+#[test]
+fn manual_demand_scales_each_stick_past_the_dead_band_to_its_limit() {
+    let rc = crate::params::RcParams {
+        deadband: 0.1,
+        max_tilt_rad: 0.3,
+        max_climb_m_s: 0.7,
+        max_yaw_rate_rad_s: 1.5,
+        ..Default::default()
+    };
+    let full =
+        PilotInput { roll: 1.0, pitch: -1.0, yaw: 1.0, throttle: 1.0, ..sticks(true, ModeSwitch::Manual) };
+    assert_eq!(crate::pilot::manual_demand(&full, &rc), ([0.3, -0.3], 0.7, -1.5));
+    // Half-way past the dead band is half the limit; within it, nothing.
+    let half = PilotInput { roll: 0.55, pitch: 0.05, yaw: -0.55, throttle: 0.225, ..full };
+    let ([roll, pitch], climb, yaw) = crate::pilot::manual_demand(&half, &rc);
+    assert!((roll - 0.15).abs() < 1e-6 && pitch == 0.0, "{roll} {pitch}");
+    assert!((climb + 0.35).abs() < 1e-6 && (yaw - 0.75).abs() < 1e-6, "{climb} {yaw}");
+}
+
+#[test]
+fn the_kill_switch_on_the_ground_latches_too() {
+    let mut h = Harness::new();
+    h.pilot = Some(sticks(false, ModeSwitch::Auto));
+    h.run(1.0);
+    h.pilot = Some(PilotInput { kill: true, ..sticks(false, ModeSwitch::Auto) });
+    let out = h.step(None);
+    assert_eq!((out.status.mode, out.status.failsafe), (FlightMode::Disarmed, Some(Failsafe::Killed)));
+}
+
+#[test]
+fn auto_after_manual_on_the_ground_is_armed_not_hovering() {
+    let mut h = armed_by_switch(ModeSwitch::Manual);
+    h.run(0.5);
+    assert_eq!(h.mode(), FlightMode::Manual);
+    h.pilot = Some(sticks(true, ModeSwitch::Auto));
+    assert_eq!(h.step(None).status.mode, FlightMode::Armed);
+}
+
+#[test]
+fn manual_mode_ends_an_rc_loss_failsafe_once_the_link_is_back() {
+    let mut h = Harness::with(|p| p.rc.required = true);
+    h.pilot = Some(sticks(true, ModeSwitch::Auto));
+    h.run(1.0);
+    assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
+    assert_eq!(h.command(Command::TakeOff), Some(CommandResult::Accepted(Command::TakeOff)));
+    h.run_until(FlightMode::Hover, 20.0);
+    h.pilot = Some(PilotInput { link: RcLink::Lost, ..sticks(true, ModeSwitch::Auto) });
+    assert_eq!(h.step(None).status.failsafe, Some(Failsafe::RcLost));
+    // Back, and the pilot takes over: the failsafe is over.
+    h.pilot = Some(sticks(true, ModeSwitch::Manual));
+    let out = h.step(None);
+    assert_eq!((out.status.mode, out.status.failsafe), (FlightMode::Manual, None));
+}
+
+#[test]
+fn a_second_kill_after_re_arming_stops_the_motors_again() {
+    let mut h = manual_in_the_air();
+    h.pilot = Some(PilotInput { kill: true, ..sticks(true, ModeSwitch::Manual) });
+    assert_eq!(h.step(None).status.failsafe, Some(Failsafe::Killed));
+    // Released, the arm switch cycled: armed again, in manual on the ground, the throttle up.
+    h.pilot = Some(sticks(false, ModeSwitch::Manual));
+    h.run(0.2);
+    h.pilot = Some(PilotInput { throttle: 1.0, ..sticks(true, ModeSwitch::Manual) });
+    h.run(1.0);
+    assert_eq!(h.mode(), FlightMode::Manual);
+    assert!(h.out.unwrap().motors_rad_s.iter().all(|w| *w > 300.0));
+    // Killed again: stopped again in that step.
+    h.pilot = Some(PilotInput { kill: true, throttle: 1.0, ..sticks(true, ModeSwitch::Manual) });
+    let out = h.step(None);
+    assert_eq!((out.status.mode, out.motors_rad_s), (FlightMode::Disarmed, [0.0; 4]));
+}
+
+#[test]
+fn the_arm_switch_falling_on_a_disarmed_vehicle_changes_nothing() {
+    // Disarmed by the kill switch, which is then released with the arm switch still high: the falling arm
+    // switch is no disarm command (which would clear the failsafe the kill left).
+    let mut h = Harness::new();
+    h.pilot = Some(sticks(true, ModeSwitch::Auto));
+    h.run(1.0);
+    h.pilot = Some(PilotInput { kill: true, ..sticks(true, ModeSwitch::Auto) });
+    h.run(0.1);
+    h.pilot = Some(sticks(true, ModeSwitch::Auto));
+    let before = h.step(None).status;
+    h.pilot = Some(sticks(false, ModeSwitch::Auto));
+    let after = h.step(None).status;
+    assert_eq!((after.mode, after.failsafe), (FlightMode::Disarmed, before.failsafe));
+    assert_eq!(before.failsafe, Some(Failsafe::Killed));
+}
