@@ -37,6 +37,16 @@ fn manual_in_the_air() -> Harness {
     h
 }
 
+/// `h` with the receiver's switches high in auto, armed and taken off by the station, hovering.
+fn hovering_on_the_mission(mut h: Harness) -> Harness {
+    h.pilot = Some(sticks(true, ModeSwitch::Auto));
+    h.run(1.0);
+    assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
+    assert_eq!(h.command(Command::TakeOff), Some(CommandResult::Accepted(Command::TakeOff)));
+    h.run_until(FlightMode::Hover, 20.0);
+    h
+}
+
 #[test]
 fn the_arm_switch_arms_on_its_rising_edge_only_and_disarms_when_low() {
     // High when the receiver is first heard (after the estimator has aligned, so that an arm would be
@@ -66,13 +76,7 @@ fn the_arm_switch_arms_on_its_rising_edge_only_and_disarms_when_low() {
 fn the_kill_switch_stops_the_motors_in_every_mode_and_keeps_them_stopped() {
     for mode in [ModeSwitch::Auto, ModeSwitch::Manual] {
         let mut h = if mode == ModeSwitch::Auto {
-            let mut h = Harness::new();
-            h.pilot = Some(sticks(true, ModeSwitch::Auto));
-            h.run(1.0);
-            assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
-            assert_eq!(h.command(Command::TakeOff), Some(CommandResult::Accepted(Command::TakeOff)));
-            h.run_until(FlightMode::Hover, 20.0);
-            h
+            hovering_on_the_mission(Harness::new())
         } else {
             manual_in_the_air()
         };
@@ -214,24 +218,14 @@ fn with_rc_required_arming_needs_the_link_and_losing_it_lands_or_disarms() {
     let out = h.step(None);
     assert_eq!((out.status.mode, out.status.failsafe), (FlightMode::Disarmed, Some(Failsafe::RcLost)));
     // Hovering on the station's mission: lost, it holds for rc.loss_hold_s and lands.
-    let mut h = Harness::with(required);
-    h.pilot = Some(sticks(true, ModeSwitch::Auto));
-    h.run(1.0);
-    assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
-    assert_eq!(h.command(Command::TakeOff), Some(CommandResult::Accepted(Command::TakeOff)));
-    h.run_until(FlightMode::Hover, 20.0);
+    let mut h = hovering_on_the_mission(Harness::with(required));
     h.pilot = Some(PilotInput { link: RcLink::Lost, ..sticks(true, ModeSwitch::Auto) });
     h.run(0.9);
     assert_eq!(h.mode(), FlightMode::Hover);
     h.run(0.2);
     assert_eq!(h.mode(), FlightMode::Landing);
     // Not required: losing the transmitter in the automatic mode changes nothing (the station flies).
-    let mut h = Harness::new();
-    h.pilot = Some(sticks(true, ModeSwitch::Auto));
-    h.run(1.0);
-    assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
-    assert_eq!(h.command(Command::TakeOff), Some(CommandResult::Accepted(Command::TakeOff)));
-    h.run_until(FlightMode::Hover, 20.0);
+    let mut h = hovering_on_the_mission(Harness::new());
     h.pilot = Some(PilotInput { link: RcLink::Lost, ..sticks(true, ModeSwitch::Auto) });
     h.run(3.0);
     assert_eq!(h.mode(), FlightMode::Hover);
@@ -326,13 +320,22 @@ fn manual_demand_scales_each_stick_past_the_dead_band_to_its_limit() {
     assert!((climb + 0.35).abs() < 1e-6 && (yaw - 0.75).abs() < 1e-6, "{climb} {yaw}");
 }
 
+/// Disarmed on the ground after the estimator's alignment with the arm switch at `arm`, then the kill switch
+/// thrown for `steps` control steps.
+fn killed_on_the_ground(arm: bool, steps: usize) -> Harness {
+    let mut h = Harness::new();
+    h.pilot = Some(sticks(arm, ModeSwitch::Auto));
+    h.run(1.0);
+    h.pilot = Some(PilotInput { kill: true, ..sticks(arm, ModeSwitch::Auto) });
+    for _ in 0..steps {
+        h.step(None);
+    }
+    h
+}
+
 #[test]
 fn the_kill_switch_on_the_ground_latches_too() {
-    let mut h = Harness::new();
-    h.pilot = Some(sticks(false, ModeSwitch::Auto));
-    h.run(1.0);
-    h.pilot = Some(PilotInput { kill: true, ..sticks(false, ModeSwitch::Auto) });
-    let out = h.step(None);
+    let out = killed_on_the_ground(false, 1).out.unwrap();
     assert_eq!((out.status.mode, out.status.failsafe), (FlightMode::Disarmed, Some(Failsafe::Killed)));
 }
 
@@ -347,12 +350,7 @@ fn auto_after_manual_on_the_ground_is_armed_not_hovering() {
 
 #[test]
 fn manual_mode_ends_an_rc_loss_failsafe_once_the_link_is_back() {
-    let mut h = Harness::with(|p| p.rc.required = true);
-    h.pilot = Some(sticks(true, ModeSwitch::Auto));
-    h.run(1.0);
-    assert_eq!(h.command(Command::Arm), Some(CommandResult::Accepted(Command::Arm)));
-    assert_eq!(h.command(Command::TakeOff), Some(CommandResult::Accepted(Command::TakeOff)));
-    h.run_until(FlightMode::Hover, 20.0);
+    let mut h = hovering_on_the_mission(Harness::with(|p| p.rc.required = true));
     h.pilot = Some(PilotInput { link: RcLink::Lost, ..sticks(true, ModeSwitch::Auto) });
     assert_eq!(h.step(None).status.failsafe, Some(Failsafe::RcLost));
     // Back, and the pilot takes over: the failsafe is over.
@@ -383,11 +381,7 @@ fn a_second_kill_after_re_arming_stops_the_motors_again() {
 fn the_arm_switch_falling_on_a_disarmed_vehicle_changes_nothing() {
     // Disarmed by the kill switch, which is then released with the arm switch still high: the falling arm
     // switch is no disarm command (which would clear the failsafe the kill left).
-    let mut h = Harness::new();
-    h.pilot = Some(sticks(true, ModeSwitch::Auto));
-    h.run(1.0);
-    h.pilot = Some(PilotInput { kill: true, ..sticks(true, ModeSwitch::Auto) });
-    h.run(0.1);
+    let mut h = killed_on_the_ground(true, 50);
     h.pilot = Some(sticks(true, ModeSwitch::Auto));
     let before = h.step(None).status;
     h.pilot = Some(sticks(false, ModeSwitch::Auto));
