@@ -8,9 +8,12 @@
 //! - Each reference is compared with the estimate interpolated (normalised linear interpolation of the
 //!   quaternions) between the two control steps around its time.
 //! - Comparisons start at the flight code's first attitude: it integrates an IMU sample when the next one
-//!   arrives (its spike filter looks one sample ahead), so the references before the step of the second
-//!   sample are counted (`not_compared_before_first_attitude`) and compared for neither filter. (A recording
-//!   whose reference starts before its IMU, as PX4's logs can, would otherwise score the level initial state.)
+//!   arrives (its spike filter looks one sample ahead), and it has a tilt once an accelerometer sample or
+//!   block of samples has given it (its reported tilt standard deviation falls below half of
+//!   `UNALIGNED_TILT_SIGMA_RAD`; a first sample shaken by rotor vibration leaves the level starting guess
+//!   for the first block, 50 ms). The references before that step are counted
+//!   (`not_compared_before_first_attitude`) and compared for neither filter. (A recording whose reference
+//!   starts before its IMU, as PX4's logs can, would otherwise score the level initial state.)
 //! - Segments: the whole log; where the reference says whether the vehicle flew (a land detector), the
 //!   airborne and the grounded samples; else, where the reference has positions, the longest stretch in
 //!   which it stood still (speed below 0.05 m/s for 2 s or more) and the flight after it (from take-off to
@@ -218,13 +221,16 @@ impl ReferenceScore {
     }
 
     /// A step: its IMU samples and magnetometer (fed to the reference filter), the flight code's attitude
-    /// after it, and whether that attitude has a heading (yaw is compared from then on when it is absolute).
+    /// after it, whether that attitude has a tilt (comparisons start there: before it the flight code holds
+    /// its level starting guess and says so with its tilt uncertainty) and whether it has a heading (yaw is
+    /// compared from then on when it is absolute).
     pub fn step(
         &mut self,
         time_us: u64,
         imu: &[ImuSample],
         mag: Option<Vec3>,
         estimate: &Quat,
+        tilt_known: bool,
         yaw_known: bool,
     ) {
         if let Some(m) = mag {
@@ -235,7 +241,7 @@ impl ReferenceScore {
         }
         self.imu_seen += imu.len();
         if self.first_attitude_us.is_none() {
-            if self.imu_seen < 2 {
+            if self.imu_seen < 2 || !tilt_known {
                 return;
             }
             self.first_attitude_us = Some(time_us);
@@ -398,7 +404,7 @@ mod tests {
             };
             s.reference(&r);
             let imu = ImuSample { time_us: k * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: [0.0, 0.0, 9.81] };
-            s.step(k * 1000, &[imu], None, &ours, true);
+            s.step(k * 1000, &[imu], None, &ours, true, true);
         }
         let j = s.json();
         // The first reference comes before the flight code's first attitude (its second IMU sample).
@@ -410,6 +416,30 @@ mod tests {
             j["segments"].as_array().unwrap().iter().map(|s| s["name"].as_str().unwrap()).collect();
         assert_eq!(names, ["whole", "airborne", "ground_before_take_off"]);
         assert_eq!(j["segments"][1]["samples"], 50);
+    }
+
+    #[test]
+    fn nothing_is_scored_before_the_flight_code_knows_its_tilt() {
+        // The truth is pitched 20 deg; the flight code holds its level starting guess (tilt unknown) for the
+        // first 50 ms, as it does when its first sample is too shaken to give the tilt, then has it right.
+        let truth = Quat::from_mat3(&Attitude::new(0.0, 20f32.to_radians(), 0.0).world_from_body());
+        let level = Quat::from_mat3(&Attitude::default().world_from_body());
+        let mut s = ReferenceScore::new("test", false, [1.0, 0.0, 0.0]);
+        for ms in 1..=200u64 {
+            s.reference(&ReferenceState {
+                time_us: ms * 1000,
+                q_world_body: [truth.w, truth.x, truth.y, truth.z],
+                position_m: None,
+                airborne: None,
+            });
+            let imu = ImuSample { time_us: ms * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: [0.0, 0.0, 9.81] };
+            let known = ms >= 50;
+            s.step(ms * 1000, &[imu], None, if known { &truth } else { &level }, known, true);
+        }
+        let j = s.json();
+        assert!(j["attitude_max_error_deg"]["pitch"].as_f64().unwrap() < 1e-3, "{j}");
+        assert_eq!(j["not_compared_before_first_attitude"], 49);
+        assert_eq!(j["samples"], 151);
     }
 
     #[test]
@@ -449,7 +479,7 @@ mod tests {
                 let imu =
                     ImuSample { time_us: ms * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: [0.0, 0.0, 9.81] };
                 let known = ms >= 20;
-                s.step(ms * 1000, &[imu, imu], None, if known { &truth } else { &level }, known);
+                s.step(ms * 1000, &[imu, imu], None, if known { &truth } else { &level }, true, known);
             }
         }
         let j = s.json();

@@ -262,6 +262,8 @@ pub fn replay_stream(
                         &step.imu,
                         step.mag,
                         &o.control.estimate.q,
+                        o.control.estimate.tilt_std_rad
+                            < 0.5 * control_core::estimator::UNALIGNED_TILT_SIGMA_RAD,
                         o.control.estimate.yaw_std_rad < 1.0,
                     );
                 }

@@ -15,8 +15,10 @@
 //!   hand's accelerations as noise; flying, the rotor-drag model (the specific force perpendicular to the
 //!   thrust axis is proportional to the body velocity).
 //!
-//! The first sample aligns roll and pitch with its specific force, the first block of samples (50 ms) with
-//! its mean, and the first still window with its mean (and sets the gyro bias from its mean rate). Gaps between IMU samples are integrated in
+//! The first sample aligns roll and pitch with its specific force (unless its magnitude is far from gravity's:
+//! the level starting guess then stays, with `UNALIGNED_TILT_SIGMA_RAD` as its uncertainty), the first block
+//! of samples (50 ms) with its mean, and the first still window with its mean (and sets the gyro bias from
+//! its mean rate). Gaps between IMU samples are integrated in
 //! sub-steps of at most 20 ms up to `max_imu_gap_s`; a longer gap is not integrated (the rates across it are
 //! unknown), only its process noise added, and counted (`imu_gaps`).
 //!
@@ -58,6 +60,11 @@ const N: usize = 17;
 const IP: usize = 0;
 const IV: usize = 3;
 const ITH: usize = 6;
+/// Roll and pitch standard deviation of the level starting guess, until the accelerometer gives the tilt
+/// (rad): the first sample when its magnitude is gravity's, else the first block's mean 50 ms later. A
+/// vehicle started on a sloped pad, in a hand or in flight can be tilted by tens of degrees, so the guess
+/// says it knows little (`tilt_std_rad` reports it; replay's scoring starts once it is below half of this).
+pub const UNALIGNED_TILT_SIGMA_RAD: f32 = 1.0;
 const IBG: usize = 9;
 const IBA: usize = 12;
 /// The horizontal wind (world x, y): the air's velocity the rotor-drag model sees the vehicle move against.
@@ -276,8 +283,8 @@ impl Estimator {
             0.05,
             0.05,
             0.05, // velocity (m/s)
-            0.1,
-            0.1,
+            UNALIGNED_TILT_SIGMA_RAD,
+            UNALIGNED_TILT_SIGMA_RAD,
             3.0, // attitude (rad): tilt, tilt, yaw
             params.initial_gyro_bias_sigma_rad_s,
             params.initial_gyro_bias_sigma_rad_s,

@@ -127,6 +127,33 @@ fn initial_alignment_from_a_tilted_start() {
 }
 
 #[test]
+fn a_first_sample_shaken_by_vibration_leaves_the_tilt_unknown_until_the_first_block() {
+    // Pitched 20 deg on a pad with the rotors running: the first sample reads 6.6 m/s^2 (vibration), too far
+    // from gravity to give the tilt (EuRoC MH_01 at 45 s). Until the first block's mean gives it, the
+    // estimate is the level starting guess, and its reported uncertainty must cover the 20 deg it may be off.
+    let truth = Attitude::new(0.0, -20f32.to_radians(), 0.0);
+    let f = truth.world_from_body().tmul_vec(Vec3::new(0.0, 0.0, GRAVITY));
+    let mut e = Estimator::new(EstimatorParams::default(), Vec3::ZERO);
+    e.predict(&ImuSample { time_us: 1000, gyro_rad_s: [0.0; 3], accel_m_s2: (f * 0.67).to_array() });
+    for k in 2..=30u64 {
+        e.predict(&ImuSample { time_us: k * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: f.to_array() });
+        e.propagate_covariance(k * 1000);
+    }
+    let s = e.estimate(30_000);
+    let err = (s.attitude.pitch - truth.pitch).abs();
+    assert!(err > 0.3, "the starting guess is level: {err}");
+    assert!(e.tilt_std_rad() >= err, "reported {} rad against an error of {err} rad", e.tilt_std_rad());
+    // The first block (50 ms) aligns: the tilt is known, and its uncertainty is the alignment's.
+    for k in 31..=60u64 {
+        e.predict(&ImuSample { time_us: k * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: f.to_array() });
+        e.propagate_covariance(k * 1000);
+    }
+    let s = e.estimate(60_000);
+    assert!((s.attitude.pitch - truth.pitch).abs() < 1e-3, "{}", s.attitude.pitch);
+    assert!(e.tilt_std_rad() < 0.1, "{}", e.tilt_std_rad());
+}
+
+#[test]
 fn handling_is_not_taken_for_rest() {
     // Rocked by hand (8 deg at 1 Hz in roll) after a still second: no zero-velocity or gyro-bias update
     // while it moves, so the bias found at rest survives and the tilt follows the gyro.

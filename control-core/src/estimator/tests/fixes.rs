@@ -117,6 +117,8 @@ fn the_compass_initialises_then_corrects_and_learns_its_offset_while_vision_hold
     e.q = Quat::from_mat3(&Attitude::new(0.1, -0.05, 0.5).world_from_body());
     assert_eq!(e.fuse_mag(Vec3::new(f32::NAN, 0.0, 0.0)), FuseOutcome::Invalid);
     assert_eq!(e.fuse_mag(field_reading(&e, 0.3)), FuseOutcome::Stale, "before the tilt is aligned");
+    // Aligned as the accelerometer's first block does it (the same tilt, its uncertainty the alignment's).
+    e.align_tilt(e.q.to_mat3().tmul_vec(Vec3::new(0.0, 0.0, GRAVITY)));
     e.tilt_aligned = true;
     // A field with (almost) no horizontal part tells no heading; a weak one does.
     let r = e.q.to_mat3();
