@@ -4,6 +4,7 @@
 // Index loops read naturally in small dense numerics; `!(x > 0.0)` deliberately rejects NaN.
 #![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod camera_worker;
 pub mod downward;
 pub mod export;
 pub mod fil;

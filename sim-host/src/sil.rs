@@ -268,8 +268,13 @@ pub struct Sil {
     /// Uplink messages lost to `link_loss` or `link_corruption`.
     link_dropped: u64,
     tilt_err: Rms,
-    renderer: Option<ForwardRenderer>,
-    vision: GroundVision,
+    renderer: Option<std::sync::Arc<ForwardRenderer>>,
+    /// The ground station's line detector; away on the pool while `forward_job` measures a frame.
+    vision: Option<GroundVision>,
+    /// A forward frame being rendered and measured while the simulation goes on (`camera_worker`).
+    forward_job: Option<crate::camera_worker::ForwardJob>,
+    /// Forward frames measured on the pool while the simulation went on.
+    pipelined_frames: u64,
     down_renderer: Option<DownRenderer>,
     ground_flow: Option<GroundFlow>,
     down_rng: SimRng,
@@ -456,7 +461,7 @@ impl Sil {
         let dt_us = (m.physics_step_s * 1e6).round() as u64;
         let every = |hz: f64| ((1e6 / hz) / dt_us as f64).round() as u64;
         let renderer = match mode {
-            CameraMode::Rendered => Some(ForwardRenderer::new(scenario)?),
+            CameraMode::Rendered => Some(std::sync::Arc::new(ForwardRenderer::new(scenario)?)),
             CameraMode::Analytic => None,
         };
         let down = scenario.down_camera.enabled;
@@ -490,7 +495,9 @@ impl Sil {
             link_dropped: 0,
             tilt_err: Rms::default(),
             renderer,
-            vision: GroundVision::new(scenario),
+            vision: Some(GroundVision::new(scenario)),
+            forward_job: None,
+            pipelined_frames: 0,
             down_renderer,
             ground_flow: down.then(|| GroundFlow::new(scenario)),
             down_rng: SimRng::stream(seed, "down-camera"),
@@ -604,6 +611,11 @@ impl Sil {
         self.t_us as f64 * 1e-6
     }
 
+    /// Forward frames rendered and measured on the pool while the simulation went on (`camera_worker`).
+    pub fn pipelined_frames(&self) -> u64 {
+        self.pipelined_frames
+    }
+
     /// The recorded samples.
     pub fn records(&self) -> &[Record] {
         &self.records
@@ -690,11 +702,59 @@ impl Sil {
         (r_wb.mul_mat(&mount.body_from_camera), center)
     }
 
+    /// Whether this frame can be rendered and measured on the pool while the simulation goes on
+    /// (`camera_worker`): nothing else needs it at the capture, and this run is not one of a sweep's.
+    fn may_pipeline(&self) -> bool {
+        self.ports.is_none()
+            && self.tap.is_none()
+            && self.frame_encoding().is_none()
+            && self
+                .fault_active(|k| matches!(k, FaultKind::VisionFreeze | FaultKind::LinkCorruption { .. }))
+                .is_none()
+            && rayon::current_thread_index().is_none()
+            && self.vision.is_some()
+    }
+
+    /// Waits for the forward frame in the works, if any: the detector comes back, the no-target counts take
+    /// its result, and its message on the link gets its observation.
+    fn join_forward_job(&mut self) {
+        let Some(job) = self.forward_job.take() else { return };
+        let (seq, capture_us) = (job.frame_seq, job.capture_us);
+        let (vision, detection) = job.join();
+        self.vision = Some(vision);
+        let observation = self.stats.ground_no_target.record(detection);
+        for (_, m) in self.link.iter_mut() {
+            if let Uplink::Vision(v) = m
+                && v.frame_seq == seq
+                && v.capture_time_us == capture_us
+            {
+                v.observation = observation;
+                break;
+            }
+        }
+    }
+
+    /// The ground station's line detector (back from the pool first).
+    fn ground_vision(&mut self) -> &GroundVision {
+        self.join_forward_job();
+        match self.vision.as_ref() {
+            Some(v) => v,
+            None => unreachable!("the detector is back from the pool after a join"),
+        }
+    }
+
     fn capture_frame(&mut self) {
+        // The previous frame's measurement first: results come in order, and the detector is needed again.
+        self.join_forward_job();
         let (r_wc, center) = self.camera_pose();
+        // The frame to render and measure on the pool, if it goes there.
+        let mut job = None;
         let observation = match self.mode {
             CameraMode::Rendered => {
-                let renderer = self.renderer.as_ref().map(|r| (r, r.default_settings()));
+                let renderer = self.renderer.clone().map(|r| {
+                    let s = r.default_settings();
+                    (r, s)
+                });
                 match renderer {
                     Some((r, mut settings)) => {
                         let mut s = self.seed ^ 0xF0F0_0000_0000_0000 ^ self.frame_index;
@@ -702,46 +762,67 @@ impl Sil {
                         // The camera's motion, for the motion blur and the rolling shutter.
                         (settings.velocity_m_s, settings.rates_rad_s) =
                             self.camera_motion(self.scenario.forward_camera_mount().offset_body_m);
-                        let img = r.render(&r_wc, center, &settings);
-                        let observation = match self.ports.as_mut() {
-                            Some(p) => {
-                                if !self.scenario.faults.iter().any(|f| {
-                                    f.active(self.t_us as f64 * 1e-6)
-                                        && matches!(f.kind, FaultKind::VisionDropout)
-                                }) {
-                                    p.forward.push_back((
-                                        self.t_us,
-                                        station_frame(self.frame_index, &img.data, img.width, img.height, 3),
-                                    ));
+                        if self.may_pipeline()
+                            && let Some(vision) = self.vision.take()
+                        {
+                            // Measured on the pool; its observation joins its message before it is due.
+                            let rates =
+                                self.station_telemetry.map(|t| t.estimate.rates_rad_s).unwrap_or(Vec3::ZERO);
+                            let timing = self.scenario.forward_row_timing(rates);
+                            job = Some((r, vision, settings, timing));
+                            None
+                        } else {
+                            let img = r.render(&r_wc, center, &settings);
+                            let observation = match self.ports.as_mut() {
+                                Some(p) => {
+                                    if !self.scenario.faults.iter().any(|f| {
+                                        f.active(self.t_us as f64 * 1e-6)
+                                            && matches!(f.kind, FaultKind::VisionDropout)
+                                    }) {
+                                        p.forward.push_back((
+                                            self.t_us,
+                                            station_frame(
+                                                self.frame_index,
+                                                &img.data,
+                                                img.width,
+                                                img.height,
+                                                3,
+                                            ),
+                                        ));
+                                    }
+                                    None
                                 }
-                                None
+                                None => {
+                                    // A rolling shutter: the station corrects the rows with the vehicle's rates from
+                                    // its last telemetry.
+                                    let rates = self
+                                        .station_telemetry
+                                        .map(|t| t.estimate.rates_rad_s)
+                                        .unwrap_or(Vec3::ZERO);
+                                    let timing = self.scenario.forward_row_timing(rates);
+                                    let detection = match self.vision.as_mut() {
+                                        Some(v) => v.detect_timed(&img, timing.as_ref()),
+                                        None => {
+                                            unreachable!("the detector is back from the pool after a join")
+                                        }
+                                    };
+                                    self.stats.ground_no_target.record(detection)
+                                }
+                            };
+                            if let Some(tap) = self.tap.as_mut() {
+                                tap.forward_frame(self.t_us, &img, observation.as_ref());
                             }
-                            None => {
-                                // A rolling shutter: the station corrects the rows with the vehicle's rates from
-                                // its last telemetry.
-                                let rates = self
-                                    .station_telemetry
-                                    .map(|t| t.estimate.rates_rad_s)
-                                    .unwrap_or(Vec3::ZERO);
-                                let timing = self.scenario.forward_row_timing(rates);
-                                self.stats
-                                    .ground_no_target
-                                    .record(self.vision.detect_timed(&img, timing.as_ref()))
+                            if let Some(enc) = self.frame_encoding() {
+                                let f = crate::flightlog::CameraFrame::rgb(
+                                    self.frame_index as u32,
+                                    self.t_us,
+                                    &img,
+                                    enc,
+                                );
+                                self.log_frame(f);
                             }
-                        };
-                        if let Some(tap) = self.tap.as_mut() {
-                            tap.forward_frame(self.t_us, &img, observation.as_ref());
+                            observation
                         }
-                        if let Some(enc) = self.frame_encoding() {
-                            let f = crate::flightlog::CameraFrame::rgb(
-                                self.frame_index as u32,
-                                self.t_us,
-                                &img,
-                                enc,
-                            );
-                            self.log_frame(f);
-                        }
-                        observation
                     }
                     None => None,
                 }
@@ -765,7 +846,9 @@ impl Sil {
                     project_observation(&cam, &target, &r_wc.transpose(), center, 8.0, 2.0, || {
                         (sigma * rng.normal()) as f32
                     })
-                    .and_then(|o| within_detector_limits(o, cam.focal_px(), self.vision.detector_params()));
+                    .and_then(|o| {
+                        within_detector_limits(o, cam.focal_px(), self.ground_vision().detector_params())
+                    });
                 self.stats.analytic_not_in_view += observation.is_none() as u64;
                 observation
             }
@@ -791,6 +874,20 @@ impl Sil {
             // carries it packed (protocol::packed); the campaign's flights are chaotic enough that a one-ulp
             // change of a normal moves a 60-run p95 by millimetres (docs/ground-station.md, "Link budget").
             self.send(deliver, Uplink::Vision(msg));
+        }
+        if let Some((r, vision, settings, timing)) = job {
+            self.pipelined_frames += 1;
+            self.forward_job = Some(crate::camera_worker::ForwardJob::spawn(
+                r,
+                vision,
+                r_wc,
+                center,
+                settings,
+                timing,
+                self.t_us,
+                self.frame_index as u32,
+                deliver,
+            ));
         }
         self.frame_index += 1;
         self.stats.frames += 1;
@@ -989,6 +1086,10 @@ impl Sil {
     }
 
     fn control_step(&mut self) {
+        // A forward frame measured on the pool joins its message before the message is due.
+        if self.forward_job.as_ref().is_some_and(|j| j.deliver_us <= self.t_us) {
+            self.join_forward_job();
+        }
         let mut delivered: Vec<Uplink> = Vec::new();
         while let Some(&(at, msg)) = self.link.front() {
             if at > self.t_us {
@@ -1374,6 +1475,7 @@ impl Sil {
 
     /// Final statistics. With the firmware in QEMU, ends it and keeps its stack report.
     pub fn finish(&mut self) -> RunStats {
+        self.join_forward_job();
         if let Some(Fc::Qemu(q)) = self.fc.take() {
             match q.finish() {
                 Ok(console) => {
