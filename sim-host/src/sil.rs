@@ -275,8 +275,13 @@ pub struct Sil {
     forward_job: Option<crate::camera_worker::ForwardJob>,
     /// Forward frames measured on the pool while the simulation went on.
     pipelined_frames: u64,
-    down_renderer: Option<DownRenderer>,
+    down_renderer: Option<std::sync::Arc<DownRenderer>>,
+    /// The ground station's flow tracker; away on the pool while `down_job` measures a frame.
     ground_flow: Option<GroundFlow>,
+    /// A downward frame being rendered and measured while the simulation goes on (`camera_worker`).
+    down_job: Option<crate::camera_worker::DownJob>,
+    /// Downward frames measured on the pool while the simulation went on.
+    pipelined_down_frames: u64,
     down_rng: SimRng,
     down_index: u64,
     next_down_us: u64,
@@ -466,7 +471,7 @@ impl Sil {
         };
         let down = scenario.down_camera.enabled;
         let down_renderer = match mode {
-            CameraMode::Rendered if down => Some(DownRenderer::new(scenario)?),
+            CameraMode::Rendered if down => Some(std::sync::Arc::new(DownRenderer::new(scenario)?)),
             _ => None,
         };
         Ok(Self {
@@ -500,6 +505,8 @@ impl Sil {
             pipelined_frames: 0,
             down_renderer,
             ground_flow: down.then(|| GroundFlow::new(scenario)),
+            down_job: None,
+            pipelined_down_frames: 0,
             down_rng: SimRng::stream(seed, "down-camera"),
             down_index: 0,
             next_down_us: 0,
@@ -616,6 +623,11 @@ impl Sil {
         self.pipelined_frames
     }
 
+    /// Downward frames rendered and measured on the pool while the simulation went on.
+    pub fn pipelined_down_frames(&self) -> u64 {
+        self.pipelined_down_frames
+    }
+
     /// The recorded samples.
     pub fn records(&self) -> &[Record] {
         &self.records
@@ -715,12 +727,81 @@ impl Sil {
             && self.vision.is_some()
     }
 
+    /// The same for the downward camera, whose message is sent only when its pair gives a flow: also not
+    /// while the link drops or corrupts messages (a message queued ahead of the result could not be taken
+    /// back from those counts and draws).
+    fn may_pipeline_down(&self) -> bool {
+        self.ports.is_none()
+            && self.tap.is_none()
+            && self.frame_encoding().is_none()
+            && self
+                .fault_active(|k| matches!(k, FaultKind::LinkLoss | FaultKind::LinkCorruption { .. }))
+                .is_none()
+            && rayon::current_thread_index().is_none()
+            && self.down_renderer.is_some()
+            && self.ground_flow.is_some()
+    }
+
+    /// Waits for the downward frame in the works, if any: the tracker comes back; a flow fills its message
+    /// on the link and keeps the pair's truth, no flow takes the message back.
+    fn join_down_job(&mut self) {
+        let Some(job) = self.down_job.take() else { return };
+        let (flow, result) = job.work.join();
+        self.ground_flow = Some(flow);
+        let pos = if job.queued {
+            self.link.iter().position(|(_, m)| {
+                matches!(m, Uplink::Flow(f) if f.frame_seq == job.frame_seq && f.t_next_us == job.capture_us)
+            })
+        } else {
+            None
+        };
+        match result {
+            Some(result) => {
+                if let Some(i) = pos
+                    && let Some((_, Uplink::Flow(f))) = self.link.get_mut(i)
+                {
+                    f.result = result;
+                }
+                if let Some(truth) = job.truth {
+                    self.keep_flow_truth(truth, job.capture_us);
+                }
+            }
+            None => {
+                if let Some(i) = pos {
+                    self.link.remove(i);
+                }
+            }
+        }
+    }
+
+    /// The truth over a downward frame pair ending now: the mean velocity and the attitude at mid-interval.
+    fn pair_truth(&self, t_prev: u64, p_prev: [f64; 3], q_prev: [f64; 4]) -> crate::camera_worker::FlowTruth {
+        let st = self.quad.state;
+        let dts = (self.t_us - t_prev) as f64 * 1e-6;
+        let v = [0, 1, 2].map(|k| (st.p[k] - p_prev[k]) / dts);
+        let mut q = [0.0; 4];
+        let sign = if (0..4).map(|k| st.q[k] * q_prev[k]).sum::<f64>() < 0.0 { -1.0 } else { 1.0 };
+        for k in 0..4 {
+            q[k] = q_prev[k] + sign * st.q[k];
+        }
+        let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+        (self.t_us, quat_to_mat(q.map(|v| v / n)), v)
+    }
+
+    /// Keeps a pair's truth for scoring its flow, and the last half second of them.
+    fn keep_flow_truth(&mut self, truth: crate::camera_worker::FlowTruth, now_us: u64) {
+        self.flow_truth.push_back(truth);
+        while self.flow_truth.front().is_some_and(|(t, _, _)| t + 500_000 < now_us) {
+            self.flow_truth.pop_front();
+        }
+    }
+
     /// Waits for the forward frame in the works, if any: the detector comes back, the no-target counts take
     /// its result, and its message on the link gets its observation.
     fn join_forward_job(&mut self) {
         let Some(job) = self.forward_job.take() else { return };
         let (seq, capture_us) = (job.frame_seq, job.capture_us);
-        let (vision, detection) = job.join();
+        let (vision, detection) = job.work.join();
         self.vision = Some(vision);
         let observation = self.stats.ground_no_target.record(detection);
         for (_, m) in self.link.iter_mut() {
@@ -942,6 +1023,8 @@ impl Sil {
     }
 
     fn capture_down_frame(&mut self) {
+        // The previous frame's flow first: the tracker pairs this frame with it.
+        self.join_down_job();
         let cfg = self.scenario.down_camera.clone();
         let (pose, cam_pose) = self.down_pose();
         let dt = 1.0 / cfg.rate_hz;
@@ -950,6 +1033,51 @@ impl Sil {
         let rates = self.station_telemetry.map(|t| t.estimate.rates_rad_s).unwrap_or(Vec3::ZERO);
         let r_bc = self.scenario.down_camera_mount().body_from_camera;
         let predicted = r_bc.transpose().mul_vec(rates * dt as f32);
+        let deliver = self.t_us + (cfg.latency_s * 1e6).round() as u64;
+        if self.may_pipeline_down()
+            && let (Some(r), Some(fl)) = (self.down_renderer.clone(), self.ground_flow.take())
+        {
+            // Measured on the pool; its message waits on the link for the flow, as the forward camera's does.
+            let mut settings = r.default_settings();
+            let mut s = self.seed ^ 0x0D0D_0000_0000_0000 ^ self.down_index;
+            settings.seed = splitmix64(&mut s);
+            let truth =
+                self.prev_down.map(|(t_prev, _, p_prev, q_prev)| self.pair_truth(t_prev, p_prev, q_prev));
+            let queued = self.fault_active(|k| matches!(k, FaultKind::FlowDropout)).is_none();
+            let queued = match self.prev_down {
+                Some((t_prev, ..)) if queued => {
+                    let msg = FlowMeasurement {
+                        t_prev_us: t_prev,
+                        t_next_us: self.t_us,
+                        frame_seq: self.down_index as u32,
+                        result: Err(vision_core::flow::NoFlowReason::TooFewTracks),
+                    };
+                    self.send(deliver, Uplink::Flow(msg));
+                    true
+                }
+                _ => false,
+            };
+            self.down_job = Some(crate::camera_worker::DownJob {
+                work: crate::camera_worker::DownJob::spawn(r, fl, pose, settings, predicted),
+                deliver_us: deliver,
+                capture_us: self.t_us,
+                frame_seq: self.down_index as u32,
+                queued,
+                truth,
+            });
+            self.pipelined_down_frames += 1;
+        } else {
+            self.capture_down_frame_now(pose, cam_pose, predicted, deliver);
+        }
+        let st = self.quad.state;
+        self.prev_down = Some((self.t_us, cam_pose, st.p, st.q));
+        self.down_index += 1;
+        self.stats.down_frames += 1;
+        self.next_down_us = ((self.down_index as f64) * 1e6 / cfg.rate_hz).round() as u64;
+    }
+
+    /// A downward frame rendered and measured at once.
+    fn capture_down_frame_now(&mut self, pose: DownPose, cam_pose: CamPose, predicted: Vec3, deliver: u64) {
         let result = match (&self.down_renderer, &mut self.ground_flow) {
             (Some(r), Some(fl)) => {
                 let mut settings = r.default_settings();
@@ -988,7 +1116,6 @@ impl Sil {
             }),
             _ => None,
         };
-        let st = self.quad.state;
         if let (Some(result), Some((t_prev, _, p_prev, q_prev))) = (result, self.prev_down) {
             let msg = FlowMeasurement {
                 t_prev_us: t_prev,
@@ -996,29 +1123,12 @@ impl Sil {
                 frame_seq: self.down_index as u32,
                 result,
             };
-            let deliver = self.t_us + (cfg.latency_s * 1e6).round() as u64;
             if self.fault_active(|k| matches!(k, FaultKind::FlowDropout)).is_none() {
                 self.send(deliver, Uplink::Flow(msg));
             }
-            // The truth over the pair: the mean velocity and the attitude at mid-interval.
-            let dts = (self.t_us - t_prev) as f64 * 1e-6;
-            let v = [0, 1, 2].map(|k| (st.p[k] - p_prev[k]) / dts);
-            let mut q = [0.0; 4];
-            let sign = if (0..4).map(|k| st.q[k] * q_prev[k]).sum::<f64>() < 0.0 { -1.0 } else { 1.0 };
-            for k in 0..4 {
-                q[k] = q_prev[k] + sign * st.q[k];
-            }
-            let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-            let r_mid = quat_to_mat(q.map(|v| v / n));
-            self.flow_truth.push_back((self.t_us, r_mid, v));
-            while self.flow_truth.front().is_some_and(|(t, _, _)| t + 500_000 < self.t_us) {
-                self.flow_truth.pop_front();
-            }
+            let truth = self.pair_truth(t_prev, p_prev, q_prev);
+            self.keep_flow_truth(truth, self.t_us);
         }
-        self.prev_down = Some((self.t_us, cam_pose, st.p, st.q));
-        self.down_index += 1;
-        self.stats.down_frames += 1;
-        self.next_down_us = ((self.down_index as f64) * 1e6 / cfg.rate_hz).round() as u64;
     }
 
     /// Compares a flow velocity of the flight code with the truth of its frame pair.
@@ -1086,9 +1196,12 @@ impl Sil {
     }
 
     fn control_step(&mut self) {
-        // A forward frame measured on the pool joins its message before the message is due.
+        // Frames measured on the pool join their messages before the messages are due.
         if self.forward_job.as_ref().is_some_and(|j| j.deliver_us <= self.t_us) {
             self.join_forward_job();
+        }
+        if self.down_job.as_ref().is_some_and(|j| j.deliver_us <= self.t_us) {
+            self.join_down_job();
         }
         let mut delivered: Vec<Uplink> = Vec::new();
         while let Some(&(at, msg)) = self.link.front() {
@@ -1476,6 +1589,7 @@ impl Sil {
     /// Final statistics. With the firmware in QEMU, ends it and keeps its stack report.
     pub fn finish(&mut self) -> RunStats {
         self.join_forward_job();
+        self.join_down_job();
         if let Some(Fc::Qemu(q)) = self.fc.take() {
             match q.finish() {
                 Ok(console) => {
