@@ -60,8 +60,8 @@ impl<T: Send + 'static> PoolJob<T> {
 
 /// One forward frame in the works.
 pub struct ForwardJob {
-    /// The detector (with what it learned from this frame) and its result.
-    pub work: PoolJob<(GroundVision, Detection)>,
+    /// The detector (with what it learned from this frame), its result, and the frame's buffer for the next.
+    pub work: PoolJob<(GroundVision, Detection, RgbImage)>,
     /// When its measurement is due at the flight code (us).
     pub deliver_us: u64,
     /// Its capture time (us): with the sequence number, its message on the link.
@@ -71,11 +71,12 @@ pub struct ForwardJob {
 }
 
 impl ForwardJob {
-    /// Renders at `r_wc`, `center` with `settings` and runs `vision` on the image, on the thread pool.
+    /// Renders at `r_wc`, `center` with `settings` into `img` and runs `vision` on it, on the thread pool.
     #[allow(clippy::too_many_arguments)]
     pub fn spawn(
         renderer: Arc<ForwardRenderer>,
         mut vision: GroundVision,
+        mut img: RgbImage,
         r_wc: Mat3,
         center: Vec3,
         settings: RenderSettings,
@@ -85,9 +86,9 @@ impl ForwardJob {
         deliver_us: u64,
     ) -> Self {
         let work = PoolJob::spawn(move || {
-            let img: RgbImage = renderer.render(&r_wc, center, &settings);
+            renderer.render_into(&r_wc, center, &settings, &mut img);
             let detection = vision.detect_timed(&img, timing.as_ref());
-            (vision, detection)
+            (vision, detection, img)
         });
         Self { work, deliver_us, capture_us, frame_seq }
     }

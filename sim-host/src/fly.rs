@@ -502,42 +502,46 @@ pub fn write_plots(
         ("vy.png", "y velocity (paper Fig. 10)", "vy (m/s)", 1, true),
     ];
     let flow_t: Vec<f64> = flow.iter().map(|r| r.t_s).collect();
-    let mut out = Vec::new();
-    for (file, title, ylabel, k, vel) in panels {
-        let truth = col(&|r| if vel { r.true_v[k] } else { r.true_p[k] });
-        let est = col(&|r| (if vel { r.est_v[k] } else { r.est_p[k] }) as f64);
-        let des = plotted_setpoint(records, k, vel, floor_z);
-        let flow_v: Vec<f64> = if vel { flow.iter().map(|r| r.measured[k]).collect() } else { Vec::new() };
-        let mut series = vec![
-            Series { name: "desired", color: [110, 110, 110], xs: &t, ys: &des, dashed: true },
-            Series { name: "truth", color: [30, 90, 200], xs: &t, ys: &truth, dashed: false },
-            Series { name: "estimate", color: [220, 60, 30], xs: &t, ys: &est, dashed: false },
-        ];
-        if vel && !flow.is_empty() {
-            series.insert(
-                1,
-                Series {
-                    name: "optical flow",
-                    color: [60, 170, 80],
-                    xs: &flow_t,
-                    ys: &flow_v,
-                    dashed: false,
-                },
-            );
-        }
-        let img = render(&Plot {
-            title,
-            x_label: "time (s)",
-            y_label: ylabel,
-            series,
-            spans: spans.clone(),
-            size: (1200, 420),
-        });
-        let path = dir.join(file);
-        write_png_rgb(&path, &img)?;
-        out.push(path);
-    }
-    Ok(out)
+    // The plots are drawn and encoded in parallel (each is a pure function of the records).
+    use rayon::prelude::*;
+    panels
+        .into_par_iter()
+        .map(|(file, title, ylabel, k, vel)| {
+            let truth = col(&|r| if vel { r.true_v[k] } else { r.true_p[k] });
+            let est = col(&|r| (if vel { r.est_v[k] } else { r.est_p[k] }) as f64);
+            let des = plotted_setpoint(records, k, vel, floor_z);
+            let flow_v: Vec<f64> =
+                if vel { flow.iter().map(|r| r.measured[k]).collect() } else { Vec::new() };
+            let mut series = vec![
+                Series { name: "desired", color: [110, 110, 110], xs: &t, ys: &des, dashed: true },
+                Series { name: "truth", color: [30, 90, 200], xs: &t, ys: &truth, dashed: false },
+                Series { name: "estimate", color: [220, 60, 30], xs: &t, ys: &est, dashed: false },
+            ];
+            if vel && !flow.is_empty() {
+                series.insert(
+                    1,
+                    Series {
+                        name: "optical flow",
+                        color: [60, 170, 80],
+                        xs: &flow_t,
+                        ys: &flow_v,
+                        dashed: false,
+                    },
+                );
+            }
+            let img = render(&Plot {
+                title,
+                x_label: "time (s)",
+                y_label: ylabel,
+                series,
+                spans: spans.clone(),
+                size: (1200, 420),
+            });
+            let path = dir.join(file);
+            write_png_rgb(&path, &img)?;
+            Ok(path)
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -275,6 +275,8 @@ pub struct Sil {
     forward_job: Option<crate::camera_worker::ForwardJob>,
     /// Forward frames measured on the pool while the simulation went on.
     pipelined_frames: u64,
+    /// The buffer the pipelined forward frames are rendered into, between frames.
+    forward_buffer: Option<crate::imageio::RgbImage>,
     down_renderer: Option<std::sync::Arc<DownRenderer>>,
     /// The ground station's flow tracker; away on the pool while `down_job` measures a frame.
     ground_flow: Option<GroundFlow>,
@@ -503,6 +505,7 @@ impl Sil {
             vision: Some(GroundVision::new(scenario)),
             forward_job: None,
             pipelined_frames: 0,
+            forward_buffer: None,
             down_renderer,
             ground_flow: down.then(|| GroundFlow::new(scenario)),
             down_job: None,
@@ -801,8 +804,9 @@ impl Sil {
     fn join_forward_job(&mut self) {
         let Some(job) = self.forward_job.take() else { return };
         let (seq, capture_us) = (job.frame_seq, job.capture_us);
-        let (vision, detection) = job.work.join();
+        let (vision, detection, img) = job.work.join();
         self.vision = Some(vision);
+        self.forward_buffer = Some(img);
         let observation = self.stats.ground_no_target.record(detection);
         for (_, m) in self.link.iter_mut() {
             if let Uplink::Vision(v) = m
@@ -958,9 +962,11 @@ impl Sil {
         }
         if let Some((r, vision, settings, timing)) = job {
             self.pipelined_frames += 1;
+            let img = self.forward_buffer.take().unwrap_or_else(|| crate::imageio::RgbImage::new(0, 0));
             self.forward_job = Some(crate::camera_worker::ForwardJob::spawn(
                 r,
                 vision,
+                img,
                 r_wc,
                 center,
                 settings,

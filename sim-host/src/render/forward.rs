@@ -329,6 +329,17 @@ impl ForwardRenderer {
     /// Renders the view of a camera with world-from-camera rotation `r_wc` and centre `center` (world).
     pub fn render(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings) -> RgbImage {
         let mut img = RgbImage::new(self.width, self.height);
+        self.render_into(r_wc, center, settings, &mut img);
+        img
+    }
+
+    /// [`Self::render`] into `img`, whose buffer is reused (every byte is written): a flight renders its
+    /// frames into one buffer instead of allocating and clearing 0.9 MB per frame.
+    pub fn render_into(&self, r_wc: &Mat3, center: Vec3, settings: &RenderSettings, img: &mut RgbImage) {
+        if (img.width, img.height, img.data.len()) != (self.width, self.height, 3 * self.width * self.height)
+        {
+            *img = RgbImage::new(self.width, self.height);
+        }
         let subframes = self.subframes(center, settings);
         if self.lens.is_none() && settings.blur_sigma_px <= 0.0 && subframes == 1 {
             self.rows(r_wc, center, settings, Rows::Encoded(&mut img.data));
@@ -367,9 +378,8 @@ impl ForwardRenderer {
             self.response.finish(&linear, self.noise_block(settings.seed), sigma, &mut img.data);
         }
         if self.jpeg_quality > 0 {
-            img = super::sensor::through_jpeg(&img, self.jpeg_quality);
+            *img = super::sensor::through_jpeg(img, self.jpeg_quality);
         }
-        img
     }
 
     /// Sub-frames of a motion-blurred exposure: enough that consecutive views are at most half a pixel apart
