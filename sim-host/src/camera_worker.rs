@@ -162,11 +162,19 @@ mod tests {
     fn the_pipelined_cameras_fly_bit_for_bit_as_the_immediate_ones() {
         let mut s = Scenario::paper();
         // With the vision and the flow lost for a while and the link down for a moment: the measurements
-        // that are never sent are still measured, and the link's losses fall on the same messages.
+        // that are never sent are still measured, and the link's losses fall on the same messages. A frozen
+        // camera and a corrupting link measure at once (the frozen frame and the corrupted bytes are the
+        // measurement's): were they pipelined, the flight would differ.
         s.faults = vec![
             FaultConfig { start_s: 3.0, duration_s: 0.5, kind: FaultKind::VisionDropout },
             FaultConfig { start_s: 2.0, duration_s: 0.4, kind: FaultKind::FlowDropout },
             FaultConfig { start_s: 4.2, duration_s: 0.3, kind: FaultKind::LinkLoss },
+            FaultConfig { start_s: 3.6, duration_s: 0.4, kind: FaultKind::VisionFreeze },
+            FaultConfig {
+                start_s: 5.0,
+                duration_s: 0.5,
+                kind: FaultKind::LinkCorruption { byte_error_rate: 0.01 },
+            },
         ];
         // On the test's own thread frames go to the pool; on a pool thread (as in a sweep) they are measured
         // at once.

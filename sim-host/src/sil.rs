@@ -730,9 +730,10 @@ impl Sil {
             && self.vision.is_some()
     }
 
-    /// The same for the downward camera, whose message is sent only when its pair gives a flow: also not
+    /// The same for the downward camera, whose message is sent only when its pair gives a result: also not
     /// while the link drops or corrupts messages (a message queued ahead of the result could not be taken
-    /// back from those counts and draws).
+    /// back from those counts and draws). The tracker gives no result only for its first frame, which has no
+    /// pair and so no message, so the link-loss case is a safeguard that no flight exercises.
     fn may_pipeline_down(&self) -> bool {
         self.ports.is_none()
             && self.tap.is_none()
