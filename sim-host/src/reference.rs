@@ -418,6 +418,11 @@ mod tests {
         assert_eq!(j["segments"][1]["samples"], 50);
     }
 
+    /// A reference with an attitude only (no position, no land detector).
+    fn attitude_only(time_us: u64, q: &Quat) -> ReferenceState {
+        ReferenceState { time_us, q_world_body: [q.w, q.x, q.y, q.z], position_m: None, airborne: None }
+    }
+
     #[test]
     fn nothing_is_scored_before_the_flight_code_knows_its_tilt() {
         // The truth is pitched 20 deg; the flight code holds its level starting guess (tilt unknown) for the
@@ -426,12 +431,7 @@ mod tests {
         let level = Quat::from_mat3(&Attitude::default().world_from_body());
         let mut s = ReferenceScore::new("test", false, [1.0, 0.0, 0.0]);
         for ms in 1..=200u64 {
-            s.reference(&ReferenceState {
-                time_us: ms * 1000,
-                q_world_body: [truth.w, truth.x, truth.y, truth.z],
-                position_m: None,
-                airborne: None,
-            });
+            s.reference(&attitude_only(ms * 1000, &truth));
             let imu = ImuSample { time_us: ms * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: [0.0, 0.0, 9.81] };
             let known = ms >= 50;
             s.step(ms * 1000, &[imu], None, if known { &truth } else { &level }, known, true);
@@ -469,12 +469,7 @@ mod tests {
         let level = Quat::from_mat3(&Attitude::new(0.0, 0.0, 0.0).world_from_body());
         let mut s = ReferenceScore::new("test", true, [1.0, 0.0, 0.0]);
         for ms in 1..=40u64 {
-            s.reference(&ReferenceState {
-                time_us: ms * 1000,
-                q_world_body: [truth.w, truth.x, truth.y, truth.z],
-                position_m: None,
-                airborne: None,
-            });
+            s.reference(&attitude_only(ms * 1000, &truth));
             if ms % 10 == 0 {
                 let imu =
                     ImuSample { time_us: ms * 1000, gyro_rad_s: [0.0; 3], accel_m_s2: [0.0, 0.0, 9.81] };

@@ -717,33 +717,22 @@ impl Sil {
         (r_wb.mul_mat(&mount.body_from_camera), center)
     }
 
-    /// Whether this frame can be rendered and measured on the pool while the simulation goes on
-    /// (`camera_worker`): nothing else needs it at the capture, and this run is not one of a sweep's.
-    fn may_pipeline(&self) -> bool {
+    /// Whether a frame can be rendered and measured on the pool while the simulation goes on
+    /// (`camera_worker`): nothing else needs it at the capture (no station's stream, live view or log of
+    /// frames, none of the faults `at_capture` names acting), and this run is not one of a sweep's.
+    ///
+    /// The forward camera measures at once while it is frozen or the link corrupts (the frozen frame and the
+    /// corrupted bytes are the measurement's). The downward camera's message is sent only when its pair gives
+    /// a result, so it also measures at once while the link drops or corrupts messages (a message queued
+    /// ahead of the result could not be taken back from those counts and draws); the tracker gives no result
+    /// only for its first frame, which has no pair and so no message, so the link-loss case is a safeguard
+    /// that no flight exercises.
+    fn may_pipeline(&self, at_capture: impl Fn(&FaultKind) -> bool) -> bool {
         self.ports.is_none()
             && self.tap.is_none()
             && self.frame_encoding().is_none()
-            && self
-                .fault_active(|k| matches!(k, FaultKind::VisionFreeze | FaultKind::LinkCorruption { .. }))
-                .is_none()
+            && self.fault_active(at_capture).is_none()
             && rayon::current_thread_index().is_none()
-            && self.vision.is_some()
-    }
-
-    /// The same for the downward camera, whose message is sent only when its pair gives a result: also not
-    /// while the link drops or corrupts messages (a message queued ahead of the result could not be taken
-    /// back from those counts and draws). The tracker gives no result only for its first frame, which has no
-    /// pair and so no message, so the link-loss case is a safeguard that no flight exercises.
-    fn may_pipeline_down(&self) -> bool {
-        self.ports.is_none()
-            && self.tap.is_none()
-            && self.frame_encoding().is_none()
-            && self
-                .fault_active(|k| matches!(k, FaultKind::LinkLoss | FaultKind::LinkCorruption { .. }))
-                .is_none()
-            && rayon::current_thread_index().is_none()
-            && self.down_renderer.is_some()
-            && self.ground_flow.is_some()
     }
 
     /// Waits for the downward frame in the works, if any: the tracker comes back; a flow fills its message
@@ -848,8 +837,9 @@ impl Sil {
                         // The camera's motion, for the motion blur and the rolling shutter.
                         (settings.velocity_m_s, settings.rates_rad_s) =
                             self.camera_motion(self.scenario.forward_camera_mount().offset_body_m);
-                        if self.may_pipeline()
-                            && let Some(vision) = self.vision.take()
+                        if self.may_pipeline(|k| {
+                            matches!(k, FaultKind::VisionFreeze | FaultKind::LinkCorruption { .. })
+                        }) && let Some(vision) = self.vision.take()
                         {
                             // Measured on the pool; its observation joins its message before it is due.
                             let rates =
@@ -1041,7 +1031,9 @@ impl Sil {
         let r_bc = self.scenario.down_camera_mount().body_from_camera;
         let predicted = r_bc.transpose().mul_vec(rates * dt as f32);
         let deliver = self.t_us + (cfg.latency_s * 1e6).round() as u64;
-        if self.may_pipeline_down()
+        if self.down_renderer.is_some()
+            && self.ground_flow.is_some()
+            && self.may_pipeline(|k| matches!(k, FaultKind::LinkLoss | FaultKind::LinkCorruption { .. }))
             && let (Some(r), Some(fl)) = (self.down_renderer.clone(), self.ground_flow.take())
         {
             // Measured on the pool; its message waits on the link for the flow, as the forward camera's does.
