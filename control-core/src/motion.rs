@@ -55,6 +55,17 @@ params_struct! {
         /// Still: largest window-mean angular rate once the estimated gyro bias is removed (rad/s); a steady
         /// rotation slower than this is indistinguishable from a bias.
         still_rate_max_rad_s: f32 = 0.2, { > 0.0, < 10.0 } "rad/s";
+        /// How long the vehicle must have been found still, block after block, before it counts as resting
+        /// (s), unless it was last seen flying (`still_confirm_flying_s`). A moving vehicle can hold its rates
+        /// and specific force steady for a moment: a glide at constant velocity looks like rest to an IMU (on
+        /// EuRoC MH_01 in flight such stretches last up to 0.93 s; its rests last 10 s and more). The
+        /// estimator waits for it only when the flight code cannot tell whether the vehicle flies (disarmed,
+        /// or a log without a land detector).
+        still_confirm_s: f32 = 0.5, { >= 0.0, <= 10.0 } "s";
+        /// The same once the vehicle was last seen flying: a landing (s). PX4's land detector likewise waits
+        /// for its conditions to hold (`LNDMC_TRIG_TIME`, 1 s, after the earlier "maybe landed" stages)
+        /// before it declares one.
+        still_confirm_flying_s: f32 = 2.0, { >= 0.0, <= 10.0 } "s";
         /// Time constant of the statistics that tell a hand-held from a flying vehicle (s).
         classify_window_s: f32 = 2.0, { > 0.0, < 10.0 } "s";
         /// Smallest RMS tilt change over that time that can tell them apart (rad).
@@ -66,6 +77,14 @@ params_struct! {
 }
 
 impl MotionParams {
+    /// How long a still stretch must last to count as a rest, after moving as `before`.
+    pub fn still_confirm_after(&self, before: MotionClass) -> f32 {
+        match before {
+            MotionClass::ThrustBorne => self.still_confirm_flying_s,
+            _ => self.still_confirm_s,
+        }
+    }
+
     pub(crate) fn validate(&self) -> Result<(), crate::params::ParamError> {
         const _: () = assert!(MAX_WINDOW_BLOCKS == 16, "the declared range of window_blocks");
         self.check_declared(0)
@@ -110,6 +129,11 @@ pub struct MotionReport {
     pub class: MotionClass,
     /// At rest: the whole window's mean angular rate and specific force (body).
     pub still_window: Option<(Vec3, Vec3)>,
+    /// Still for as long as a rest lasts (`MotionParams::still_confirm_after` the moving class before).
+    pub rest_confirmed: bool,
+    /// The class before the vehicle was last found still (what a still stretch too short to be a rest
+    /// leaves unchanged); the class itself when moving.
+    pub moving_class: MotionClass,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
@@ -137,6 +161,10 @@ pub struct MotionDetector {
     head: usize,
     class: MotionClass,
     spread: Spread,
+    /// End of the first block of the current still stretch.
+    still_since_us: Option<u64>,
+    /// The class before the current still stretch.
+    moving_class: MotionClass,
 }
 
 /// Exponentially weighted first and second moments of the block directions: the specific force in the body
@@ -189,6 +217,8 @@ impl MotionDetector {
             head: 0,
             class: MotionClass::Unknown,
             spread: Spread::default(),
+            still_since_us: None,
+            moving_class: MotionClass::Unknown,
         }
     }
 
@@ -211,6 +241,8 @@ impl MotionDetector {
             self.n = 0;
             self.class = MotionClass::Unknown;
             self.spread = Spread::default();
+            self.still_since_us = None;
+            self.moving_class = MotionClass::Unknown;
         }
         self.last_us = Some(s.time_us);
         if self.n == 0 {
@@ -256,8 +288,15 @@ impl MotionDetector {
         let window = self.params.window_blocks as usize;
         self.len = (self.len + 1).min(window);
         if self.len == window {
-            self.class = self.classify(gyro_bias);
+            self.class = self.classify(gyro_bias, block.end_us);
         }
+        if self.class == MotionClass::Still {
+            self.still_since_us.get_or_insert(block.end_us);
+        } else {
+            self.still_since_us = None;
+            self.moving_class = self.class;
+        }
+        let rest_confirmed = self.rest_confirmed(block.end_us);
         let still_window = (self.class == MotionClass::Still).then(|| {
             let inv = 1.0 / self.len as f32;
             let (mut g, mut a) = (Vec3::ZERO, Vec3::ZERO);
@@ -267,14 +306,26 @@ impl MotionDetector {
             }
             (g * inv, a * inv)
         });
-        Some(MotionReport { block, class: self.class, still_window })
+        Some(MotionReport {
+            block,
+            class: self.class,
+            still_window,
+            rest_confirmed,
+            moving_class: self.moving_class,
+        })
+    }
+
+    /// Whether the current still stretch has lasted as long as a rest does, at `end_us`.
+    fn rest_confirmed(&self, end_us: u64) -> bool {
+        let need = self.params.still_confirm_after(self.moving_class);
+        self.still_since_us.is_some_and(|t| end_us.saturating_sub(t) as f32 * 1e-6 >= need)
     }
 
     fn entries(&self) -> impl Iterator<Item = &Entry> {
         (0..self.len).map(move |k| &self.ring[(self.head + MAX_WINDOW_BLOCKS - 1 - k) % MAX_WINDOW_BLOCKS])
     }
 
-    fn classify(&self, gyro_bias: Vec3) -> MotionClass {
+    fn classify(&self, gyro_bias: Vec3, end_us: u64) -> MotionClass {
         let p = &self.params;
         let inv = 1.0 / self.len as f32;
         let (mut mg, mut ma) = (Vec3::ZERO, Vec3::ZERO);
@@ -294,8 +345,10 @@ impl MotionDetector {
         if still {
             return MotionClass::Still;
         }
+        // Leaving a rest: what flew before may land now; a short still stretch keeps the class before it.
         let keep = match self.class {
-            MotionClass::Still => MotionClass::Unknown,
+            MotionClass::Still if self.rest_confirmed(end_us) => MotionClass::Unknown,
+            MotionClass::Still => self.moving_class,
             c => c,
         };
         // Too early to tell: the spreads cover less than the classification window.
@@ -386,6 +439,68 @@ mod tests {
         let kept =
             run(&mut d, 3_000_000, 2.0, |_| (level(), Vec3::new(0.0, 0.0, 0.3), Vec3::new(0.0, 0.0, 9.0)));
         assert_eq!(kept, MotionClass::ThrustBorne);
+    }
+
+    /// The report of each block over `secs` of 1 kHz samples from `f(t)`.
+    fn reports(
+        d: &mut MotionDetector,
+        t0: u64,
+        secs: f32,
+        f: impl Fn(f32) -> (Quat, Vec3, Vec3),
+    ) -> Vec<MotionReport> {
+        let n = (secs * 1000.0) as u64;
+        (1..=n)
+            .filter_map(|k| {
+                let t = t0 + k * 1000;
+                let (q, g, a) = f(t as f32 * 1e-6);
+                d.push(&sample(t, g, a), &q, Vec3::ZERO)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_still_stretch_is_a_rest_once_it_has_lasted_longer_after_flight() {
+        let p = MotionParams::default();
+        let calm = |_: f32| (level(), Vec3::ZERO, Vec3::new(0.0, 0.0, GRAVITY));
+        // From the start: still after the window fills, a rest `still_confirm_s` later.
+        let mut d = MotionDetector::new(p);
+        let r = reports(&mut d, 0, 1.5, calm);
+        let first_still = r.iter().find(|r| r.class == MotionClass::Still).unwrap().block.end_us;
+        let first_rest = r.iter().find(|r| r.rest_confirmed).unwrap().block.end_us;
+        assert!(r.iter().all(|r| r.moving_class == MotionClass::Unknown));
+        let waited = (first_rest - first_still) as f32 * 1e-6;
+        assert!((waited - p.still_confirm_s).abs() < 0.051, "{waited} s");
+        // Flying (rocking on the thrust), then as steady as a rest: still, not yet a rest, and the class
+        // before it kept until `still_confirm_flying_s` has passed.
+        let amp = 8f32.to_radians();
+        let w = core::f32::consts::TAU;
+        let mut d = MotionDetector::new(p);
+        let fly = reports(&mut d, 0, 3.0, |t| {
+            let r = Attitude::new(amp * libm::sinf(w * t), 0.0, 0.0).world_from_body();
+            let g = Vec3::new(amp * w * libm::cosf(w * t), 0.0, 0.0);
+            (Quat::from_mat3(&r), g, Vec3::new(0.0, 0.0, GRAVITY))
+        });
+        assert_eq!(fly.last().unwrap().class, MotionClass::ThrustBorne);
+        let r = reports(&mut d, 3_000_000, 3.0, calm);
+        let first_still = r.iter().find(|r| r.class == MotionClass::Still).unwrap().block.end_us;
+        let first_rest = r.iter().find(|r| r.rest_confirmed).unwrap().block.end_us;
+        let waited = (first_rest - first_still) as f32 * 1e-6;
+        assert!((waited - p.still_confirm_flying_s).abs() < 0.051, "{waited} s");
+        for x in r.iter().filter(|r| r.block.end_us < first_rest) {
+            assert!(!x.rest_confirmed);
+            assert_eq!(x.moving_class, MotionClass::ThrustBorne);
+        }
+        // Moving again before the rest is confirmed: the flight's class comes back at once.
+        let mut d = MotionDetector::new(p);
+        reports(&mut d, 0, 3.0, |t| {
+            let r = Attitude::new(amp * libm::sinf(w * t), 0.0, 0.0).world_from_body();
+            let g = Vec3::new(amp * w * libm::cosf(w * t), 0.0, 0.0);
+            (Quat::from_mat3(&r), g, Vec3::new(0.0, 0.0, GRAVITY))
+        });
+        let r = reports(&mut d, 3_000_000, 1.0, calm);
+        assert!(r.iter().any(|r| r.class == MotionClass::Still) && !r.iter().any(|r| r.rest_confirmed));
+        let r = reports(&mut d, 4_000_000, 0.1, |_| (level(), Vec3::new(0.5, 0.0, 0.0), Vec3::Z * GRAVITY));
+        assert_eq!(r.last().unwrap().class, MotionClass::ThrustBorne);
     }
 
     #[test]

@@ -395,11 +395,14 @@ impl Estimator {
     pub fn fuse_accel(&mut self, ctx: &AccelContext) -> Option<AccelAiding> {
         let report = self.motion_report.take()?;
         let still = report.class == MotionClass::Still;
+        // Not known to be on the ground: only a rest that has lasted is one (`MotionParams::still_confirm_s`);
+        // until then the class before the still stretch says which model applies.
         let aiding = match ctx.airborne {
             Some(true) => AccelAiding::Drag,
-            _ if still => AccelAiding::Still,
+            Some(false) if still => AccelAiding::Still,
+            None if still && report.rest_confirmed => AccelAiding::Still,
             Some(false) => AccelAiding::Gravity,
-            None => match report.class {
+            None => match report.moving_class {
                 MotionClass::ThrustBorne => AccelAiding::Drag,
                 _ => AccelAiding::Gravity,
             },
@@ -508,13 +511,11 @@ impl Estimator {
         if learn {
             // The recorded vehicle's thrust axis in the IMU's frame is learned: the specific force's mean
             // direction in flight (its drag part averages out).
-            if !self.thrust_axis_learned {
-                self.thrust_axis = u;
-                self.thrust_axis_learned = true;
-            } else {
-                let a = (self.params.motion.block_s / self.params.thrust_axis_learn_s).min(1.0);
-                self.thrust_axis = (self.thrust_axis + (u - self.thrust_axis) * a).normalized().unwrap_or(u);
-            }
+            self.thrust_axis_blocks = self.thrust_axis_blocks.saturating_add(1);
+            let a = (self.params.motion.block_s / self.params.thrust_axis_learn_s)
+                .max(1.0 / self.thrust_axis_blocks as f32)
+                .min(1.0);
+            self.thrust_axis = (self.thrust_axis + (u - self.thrust_axis) * a).normalized().unwrap_or(u);
         }
         let k = self.params.drag_coeff_per_s;
         let s = self.params.drag_sigma_m_s2;

@@ -203,6 +203,8 @@ fn block(accel: Vec3, class: MotionClass, window: bool) -> MotionReport {
         block: Block { end_us: 50_000, samples: 50, mean_gyro: Vec3::ZERO, mean_accel: accel },
         class,
         still_window: window.then_some((Vec3::ZERO, accel)),
+        rest_confirmed: class == MotionClass::Still,
+        moving_class: if class == MotionClass::Still { MotionClass::Unknown } else { class },
     }
 }
 
@@ -236,25 +238,66 @@ fn a_gravity_block_reports_a_gated_refusal() {
 }
 
 #[test]
-fn a_learned_thrust_axis_starts_at_the_first_block_and_follows_the_mean_force() {
-    let p = EstimatorParams { thrust_axis_learn_s: 2.0, ..EstimatorParams::default() };
+fn a_learned_thrust_axis_is_the_mean_force_of_the_first_blocks_then_follows_it() {
+    let p = EstimatorParams { thrust_axis_learn_s: 0.2, ..EstimatorParams::default() };
     let mut e = Estimator::new(p, Vec3::new(1.0, 1.3, 0.8));
     let ctx = AccelContext { airborne: Some(true), pad_height_m: None };
     let u1 = Vec3::new(0.1, -0.05, 1.0).normalized().unwrap();
     e.motion_report = Some(block(u1 * 9.7, MotionClass::ThrustBorne, false));
     e.fuse_accel(&ctx);
     assert!((e.thrust_axis() - u1).norm() < 1e-6, "{:?}", e.thrust_axis());
+    // The first blocks are averaged alike (one block's vibration and accelerations would set the axis
+    // wrong by degrees), until the learning time's share of a block is the larger.
     let u2 = Vec3::new(-0.1, 0.08, 1.0).normalized().unwrap();
     e.motion_report = Some(block(u2 * 9.7, MotionClass::ThrustBorne, false));
     e.fuse_accel(&ctx);
-    let a = p.motion.block_s / p.thrust_axis_learn_s;
-    let want = (u1 + (u2 - u1) * a).normalized().unwrap();
+    let want = (u1 + (u2 - u1) * 0.5).normalized().unwrap();
     assert!((e.thrust_axis() - want).norm() < 1e-6, "{:?} {want:?}", e.thrust_axis());
+    let mut axis = want;
+    for n in 3..=6 {
+        e.motion_report = Some(block(u1 * 9.7, MotionClass::ThrustBorne, false));
+        e.fuse_accel(&ctx);
+        // block_s / learn_s = 0.25: 1/3 then 0.25 from the fourth block on.
+        let a = (1.0 / n as f32).max(p.motion.block_s / p.thrust_axis_learn_s);
+        axis = (axis + (u1 - axis) * a).normalized().unwrap();
+        assert!((e.thrust_axis() - axis).norm() < 1e-6, "block {n}: {:?} {axis:?}", e.thrust_axis());
+    }
     // Not learning (the default): the configured axis stays.
     let mut e = Estimator::new(EstimatorParams::default(), Vec3::new(1.0, 1.3, 0.8));
     e.motion_report = Some(block(u2 * 9.7, MotionClass::ThrustBorne, false));
     e.fuse_accel(&ctx);
     assert_eq!(e.thrust_axis(), Vec3::Z);
+}
+
+#[test]
+fn a_still_stretch_too_short_for_a_rest_keeps_the_model_of_the_motion_before_it() {
+    // A flying vehicle's IMU can look still for a moment (a glide at steady velocity): when the flight code
+    // cannot tell whether it flies, only a confirmed rest gets the ground constraint; until then the model
+    // of the class before applies. Known to be on the ground, still is still at once.
+    let unknown = AccelContext { airborne: None, pad_height_m: Some(0.06) };
+    let ground = AccelContext { airborne: Some(false), pad_height_m: Some(0.06) };
+    let g = Vec3::new(0.0, 0.0, GRAVITY);
+    let still = |moving_class, rest_confirmed| MotionReport {
+        moving_class,
+        rest_confirmed,
+        ..block(g, MotionClass::Still, true)
+    };
+    for (report, ctx, want) in [
+        (still(MotionClass::ThrustBorne, false), unknown, AccelAiding::Drag),
+        (still(MotionClass::Unknown, false), unknown, AccelAiding::Gravity),
+        (still(MotionClass::GravityDominated, false), unknown, AccelAiding::Gravity),
+        (still(MotionClass::ThrustBorne, true), unknown, AccelAiding::Still),
+        (still(MotionClass::ThrustBorne, false), ground, AccelAiding::Still),
+    ] {
+        let mut e = Estimator::new(EstimatorParams::default(), Vec3::new(1.0, 1.3, 0.06));
+        e.v = Vec3::new(0.5, 0.0, 0.0);
+        e.motion_report = Some(report);
+        assert_eq!(e.fuse_accel(&ctx), Some(want), "{report:?} {ctx:?}");
+        // Only a rest stops the vehicle and counts a still block.
+        let rest = want == AccelAiding::Still;
+        assert_eq!(e.counters().still_blocks, rest as u32);
+        assert_eq!(e.v.x < 0.1, rest, "{:?}", e.v);
+    }
 }
 
 #[test]

@@ -152,6 +152,9 @@ pub(super) fn still_report(gyro: Vec3, accel: Vec3, window: bool) -> MotionRepor
         block: crate::motion::Block { end_us: 50_000, samples: 50, mean_gyro: gyro, mean_accel: accel },
         class: MotionClass::Still,
         still_window: window.then_some((gyro, accel)),
+        // A rest that has lasted (see `MotionParams::still_confirm_s`).
+        rest_confirmed: true,
+        moving_class: MotionClass::Unknown,
     }
 }
 

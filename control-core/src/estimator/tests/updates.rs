@@ -243,6 +243,8 @@ fn the_drag_model_updates_across_the_thrust_axis_with_the_bias_considered() {
         block: crate::motion::Block { end_us: 50_000, samples: 50, mean_gyro: Vec3::ZERO, mean_accel: f },
         class: MotionClass::ThrustBorne,
         still_window: None,
+        rest_confirmed: false,
+        moving_class: MotionClass::ThrustBorne,
     };
     e.motion_report = Some(report);
     assert_eq!(
@@ -305,6 +307,8 @@ fn carried_by_hand_gravity_is_fused_loosely_and_a_bad_block_is_counted() {
         block: crate::motion::Block { end_us: 50_000, samples: 50, mean_gyro: Vec3::ZERO, mean_accel: f },
         class: MotionClass::GravityDominated,
         still_window: None,
+        rest_confirmed: false,
+        moving_class: MotionClass::GravityDominated,
     };
     let g_b = e.q.to_mat3().tmul_vec(Vec3::new(0.0, 0.0, GRAVITY));
     e.motion_report = Some(report(g_b + Vec3::new(0.3, 0.0, 0.0)));
