@@ -545,6 +545,9 @@ impl ControlCore {
                 } else {
                     self.mode = Armed;
                     self.controller.reset();
+                    // Every arming check passed: what stopped the last flight (a kill, a lost link on the
+                    // ground) is history, not a failsafe in force.
+                    self.failsafe = None;
                     Ok(())
                 }
             }

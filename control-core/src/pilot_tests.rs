@@ -371,6 +371,8 @@ fn a_second_kill_after_re_arming_stops_the_motors_again() {
     h.run(1.0);
     assert_eq!(h.mode(), FlightMode::Manual);
     assert!(h.out.unwrap().motors_rad_s.iter().all(|w| *w > 300.0));
+    // Flying again: the kill is history, not a failsafe in force (the status had still said `Killed`).
+    assert_eq!(h.out.unwrap().status.failsafe, None);
     // Killed again: stopped again in that step.
     h.pilot = Some(PilotInput { kill: true, throttle: 1.0, ..sticks(true, ModeSwitch::Manual) });
     let out = h.step(None);
