@@ -77,10 +77,14 @@ params_struct! {
 }
 
 impl MotionParams {
-    /// How long a still stretch must last to count as a rest, after moving as `before`.
-    pub fn still_confirm_after(&self, before: MotionClass) -> f32 {
+    /// How long a still stretch must last to count as a rest, after moving as `before`. `in_doubt`: the
+    /// vehicle has moved without ever having been seen at rest or classified (a recording that starts in the
+    /// air, with a flight too gentle to classify): it waits as long as after a flight. Still from the start,
+    /// or after being carried or a rest, it waits `still_confirm_s`.
+    pub fn still_confirm_after(&self, before: MotionClass, in_doubt: bool) -> f32 {
         match before {
             MotionClass::ThrustBorne => self.still_confirm_flying_s,
+            MotionClass::Unknown if in_doubt => self.still_confirm_flying_s,
             _ => self.still_confirm_s,
         }
     }
@@ -165,6 +169,10 @@ pub struct MotionDetector {
     still_since_us: Option<u64>,
     /// The class before the current still stretch.
     moving_class: MotionClass,
+    /// Whether the vehicle has moved (a full window not still) since the start or a gap.
+    moved: bool,
+    /// Whether it has been seen at rest, carried or flying since the start or a gap.
+    known: bool,
 }
 
 /// Exponentially weighted first and second moments of the block directions: the specific force in the body
@@ -219,6 +227,8 @@ impl MotionDetector {
             spread: Spread::default(),
             still_since_us: None,
             moving_class: MotionClass::Unknown,
+            moved: false,
+            known: false,
         }
     }
 
@@ -243,6 +253,8 @@ impl MotionDetector {
             self.spread = Spread::default();
             self.still_since_us = None;
             self.moving_class = MotionClass::Unknown;
+            self.moved = false;
+            self.known = false;
         }
         self.last_us = Some(s.time_us);
         if self.n == 0 {
@@ -297,6 +309,9 @@ impl MotionDetector {
             self.moving_class = self.class;
         }
         let rest_confirmed = self.rest_confirmed(block.end_us);
+        self.moved |= self.len == window && self.class != MotionClass::Still;
+        self.known |=
+            rest_confirmed || matches!(self.class, MotionClass::GravityDominated | MotionClass::ThrustBorne);
         let still_window = (self.class == MotionClass::Still).then(|| {
             let inv = 1.0 / self.len as f32;
             let (mut g, mut a) = (Vec3::ZERO, Vec3::ZERO);
@@ -317,7 +332,7 @@ impl MotionDetector {
 
     /// Whether the current still stretch has lasted as long as a rest does, at `end_us`.
     fn rest_confirmed(&self, end_us: u64) -> bool {
-        let need = self.params.still_confirm_after(self.moving_class);
+        let need = self.params.still_confirm_after(self.moving_class, self.moved && !self.known);
         self.still_since_us.is_some_and(|t| end_us.saturating_sub(t) as f32 * 1e-6 >= need)
     }
 
@@ -501,6 +516,30 @@ mod tests {
         assert!(r.iter().any(|r| r.class == MotionClass::Still) && !r.iter().any(|r| r.rest_confirmed));
         let r = reports(&mut d, 4_000_000, 0.1, |_| (level(), Vec3::new(0.5, 0.0, 0.0), Vec3::Z * GRAVITY));
         assert_eq!(r.last().unwrap().class, MotionClass::ThrustBorne);
+    }
+
+    #[test]
+    fn a_motion_before_anything_is_known_waits_as_after_a_flight() {
+        // A recording that starts in the air with a gentle flight: moving (the rates wander), never turning
+        // enough to be classified. Its first still stretch may be a glide: a rest only after
+        // `still_confirm_flying_s`. Once a rest has been seen, the same unclassified motion waits
+        // `still_confirm_s` (a vehicle picked up and put down, or the first seconds after a take-off).
+        let p = MotionParams::default();
+        let calm = |_: f32| (level(), Vec3::ZERO, Vec3::new(0.0, 0.0, GRAVITY));
+        let wander = |t: f32| (level(), Vec3::new(0.0, 0.0, 0.3 * libm::sinf(6.0 * t)), Vec3::Z * GRAVITY);
+        let waited = |r: &[MotionReport]| {
+            let still = r.iter().find(|r| r.class == MotionClass::Still).unwrap().block.end_us;
+            let rest = r.iter().find(|r| r.rest_confirmed).unwrap().block.end_us;
+            (rest - still) as f32 * 1e-6
+        };
+        let mut d = MotionDetector::new(p);
+        let r = reports(&mut d, 0, 1.0, wander);
+        assert_eq!(r.last().unwrap().class, MotionClass::Unknown);
+        let r = reports(&mut d, 1_000_000, 3.0, calm);
+        assert!((waited(&r) - p.still_confirm_flying_s).abs() < 0.051, "{} s", waited(&r));
+        reports(&mut d, 4_000_000, 1.0, wander);
+        let r = reports(&mut d, 5_000_000, 3.0, calm);
+        assert!((waited(&r) - p.still_confirm_s).abs() < 0.051, "{} s", waited(&r));
     }
 
     #[test]

@@ -33,7 +33,7 @@ pub enum AccelAiding {
 }
 
 /// Two unit vectors spanning the plane perpendicular to `n` (unit).
-fn perpendicular_basis(n: Vec3) -> (Vec3, Vec3) {
+pub(super) fn perpendicular_basis(n: Vec3) -> (Vec3, Vec3) {
     let a = if n.x.abs() < 0.8 { Vec3::X } else { Vec3::Y };
     let e1 = n.cross(a).normalized().unwrap_or(Vec3::X);
     (e1, n.cross(e1))
@@ -436,14 +436,11 @@ impl Estimator {
             // first block's alignment may have been moving, and the bias has turned it since).
             self.still_initialised = true;
             let blocks = p.motion.window_blocks as f32;
-            self.bg = gyro;
             let bv = p.still_gyro_sigma_rad_s * p.still_gyro_sigma_rad_s / blocks;
             for k in 0..3 {
-                for i in 0..N {
-                    self.cov[IBG + k][i] = 0.0;
-                    self.cov[i][IBG + k] = 0.0;
-                }
-                self.cov[IBG + k][IBG + k] = bv;
+                let mut h = [0.0; N];
+                h[IBG + k] = 1.0;
+                self.update(&h, gyro[k] - self.bg[k], bv, false);
             }
             self.align_tilt(accel - self.ba);
         }
@@ -533,14 +530,19 @@ impl Estimator {
             h[ITH..ITH + 3].copy_from_slice(&row_th.to_array());
             h[IW] = -row_v.x;
             h[IW + 1] = -row_v.y;
-            // The bias is considered but not corrected here: the model's errors (wind, an inexact k) would
-            // leak into it. A learned axis has absorbed the bias across it already.
-            let bias = if learn { Vec3::ZERO } else { self.ba };
-            if !learn {
+            let innovation = |bias: Vec3| e.dot(f) - e.dot(vb * (-k) + bias);
+            ok &= if learn {
+                // A learned axis has absorbed the bias across it, so the residual does not hold the bias; the
+                // bias is learned through the velocity's dynamics it shares with the tilt, which turns apart
+                // from the bias as the vehicle yaws (considered only, the bias learned as tilt at rest stayed
+                // in flight as a tilt offset; docs/architecture.md, "Recordings that start later").
+                self.update(&h, innovation(Vec3::ZERO), s * s, true)
+            } else {
+                // The configured axis: the bias enters the residual; it is considered but not corrected here,
+                // since the model's errors (wind, an inexact k) would leak into it.
                 h[IBA..IBA + 3].copy_from_slice(&e.to_array());
-            }
-            let pred = e.dot(vb * (-k) + bias);
-            ok &= self.update_considering(&h, e.dot(f) - pred, s * s, true, IBA..IBA + 3);
+                self.update_considering(&h, innovation(self.ba), s * s, true, IBA..IBA + 3)
+            };
         }
         if ok {
             self.counters.drag_blocks += 1;
