@@ -56,15 +56,16 @@ params_struct! {
         /// rotation slower than this is indistinguishable from a bias.
         still_rate_max_rad_s: f32 = 0.2, { > 0.0, < 10.0 } "rad/s";
         /// How long the vehicle must have been found still, block after block, before it counts as resting
-        /// (s), unless it was last seen flying (`still_confirm_flying_s`). A moving vehicle can hold its rates
+        /// (s), unless it may be flying (`still_confirm_flying_s`). A moving vehicle can hold its rates
         /// and specific force steady for a moment: a glide at constant velocity looks like rest to an IMU (on
         /// EuRoC MH_01 in flight such stretches last up to 0.93 s; its rests last 10 s and more). The
         /// estimator waits for it only when the flight code cannot tell whether the vehicle flies (disarmed,
         /// or a log without a land detector).
         still_confirm_s: f32 = 0.5, { >= 0.0, <= 10.0 } "s";
-        /// The same once the vehicle was last seen flying: a landing (s). PX4's land detector likewise waits
-        /// for its conditions to hold (`LNDMC_TRIG_TIME`, 1 s, after the earlier "maybe landed" stages)
-        /// before it declares one.
+        /// The same when the vehicle may be flying (s): last seen flying (a landing), or moving before it was
+        /// ever seen at rest or classified (a recording that starts in the air). PX4's land detector likewise
+        /// waits for its conditions to hold (`LNDMC_TRIG_TIME`, 1 s, after the earlier "maybe landed" stages)
+        /// before it declares a landing.
         still_confirm_flying_s: f32 = 2.0, { >= 0.0, <= 10.0 } "s";
         /// Time constant of the statistics that tell a hand-held from a flying vehicle (s).
         classify_window_s: f32 = 2.0, { > 0.0, < 10.0 } "s";
