@@ -544,6 +544,37 @@ mod tests {
     }
 
     #[test]
+    fn a_short_still_stretch_keeps_the_flight_and_a_rest_ends_it() {
+        // Flying, then hovering level (no tilt change, so the spreads cannot tell and the class is kept):
+        // a still moment shorter than a rest leaves the vehicle flying; after a rest, the next motion is
+        // not known to be a flight (it landed).
+        let calm = |_: f32| (level(), Vec3::ZERO, Vec3::new(0.0, 0.0, GRAVITY));
+        let wander = |t: f32| (level(), Vec3::new(0.0, 0.0, 0.3 * libm::sinf(6.0 * t)), Vec3::Z * GRAVITY);
+        let amp = 8f32.to_radians();
+        let w = core::f32::consts::TAU;
+        let mut d = MotionDetector::new(MotionParams::default());
+        let fly = reports(&mut d, 0, 3.0, |t| {
+            let r = Attitude::new(amp * libm::sinf(w * t), 0.0, 0.0).world_from_body();
+            let g = Vec3::new(amp * w * libm::cosf(w * t), 0.0, 0.0);
+            (Quat::from_mat3(&r), g, Vec3::new(0.0, 0.0, GRAVITY))
+        });
+        assert_eq!(fly.last().unwrap().class, MotionClass::ThrustBorne);
+        // 12 s: the flight's tilt changes have left the spreads' window (2 s time constant).
+        let hover = reports(&mut d, 3_000_000, 12.0, wander);
+        assert_eq!(hover.last().unwrap().class, MotionClass::ThrustBorne);
+        let moment = reports(&mut d, 15_000_000, 1.0, calm);
+        assert!(
+            moment.iter().any(|r| r.class == MotionClass::Still) && !moment.iter().any(|r| r.rest_confirmed)
+        );
+        let on = reports(&mut d, 16_000_000, 0.3, wander);
+        assert_eq!(on.last().unwrap().class, MotionClass::ThrustBorne);
+        let rest = reports(&mut d, 16_300_000, 3.0, calm);
+        assert!(rest.iter().any(|r| r.rest_confirmed));
+        let moved = reports(&mut d, 19_300_000, 0.3, wander);
+        assert_eq!(moved.last().unwrap().class, MotionClass::Unknown);
+    }
+
+    #[test]
     fn a_gap_forgets_the_window() {
         let mut d = MotionDetector::new(MotionParams::default());
         let still = run(&mut d, 0, 1.0, |_| (level(), Vec3::ZERO, Vec3::new(0.0, 0.0, GRAVITY)));

@@ -288,6 +288,8 @@ fn a_still_stretch_too_short_for_a_rest_keeps_the_model_of_the_motion_before_it(
         (still(MotionClass::GravityDominated, false), unknown, AccelAiding::Gravity),
         (still(MotionClass::ThrustBorne, true), unknown, AccelAiding::Still),
         (still(MotionClass::ThrustBorne, false), ground, AccelAiding::Still),
+        // On the ground and moving (carried to the pad): gravity, not a rest.
+        (block(g, MotionClass::GravityDominated, false), ground, AccelAiding::Gravity),
     ] {
         let mut e = Estimator::new(EstimatorParams::default(), Vec3::new(1.0, 1.3, 0.06));
         e.v = Vec3::new(0.5, 0.0, 0.0);
