@@ -432,8 +432,10 @@ impl Estimator {
         if !self.still_initialised
             && let Some((gyro, accel)) = report.still_window
         {
-            // The first still window: the gyro bias from its mean rate, the tilt from its mean force (the
-            // first block's alignment may have been moving, and the bias has turned it since).
+            // The first still window: its mean rate measures the gyro bias with the window's variance (a
+            // measurement, not a reset: a bias learned in flight before a first rest keeps its weight), its
+            // mean force sets the tilt (the first block's alignment may have been moving, and the bias has
+            // turned it since).
             self.still_initialised = true;
             let blocks = p.motion.window_blocks as f32;
             let bv = p.still_gyro_sigma_rad_s * p.still_gyro_sigma_rad_s / blocks;

@@ -17,8 +17,8 @@
 //!
 //! The first sample aligns roll and pitch with its specific force (unless its magnitude is far from gravity's:
 //! the level starting guess then stays, with `UNALIGNED_TILT_SIGMA_RAD` as its uncertainty), the first block
-//! of samples (50 ms) with its mean, and the first still window with its mean (and sets the gyro bias from
-//! its mean rate). Gaps between IMU samples are integrated in
+//! of samples (50 ms) with its mean, and the first rest's window with its mean (whose mean rate measures the
+//! gyro bias, weighed against what was learned before it). Gaps between IMU samples are integrated in
 //! sub-steps of at most 20 ms up to `max_imu_gap_s`; a longer gap is not integrated (the rates across it are
 //! unknown), only its process noise added, and counted (`imu_gaps`).
 //!
