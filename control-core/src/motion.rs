@@ -474,6 +474,14 @@ mod tests {
             .collect()
     }
 
+    /// Flying, rocking 8 deg in roll at 1 Hz on the thrust (the force stays along body z).
+    fn rocking_flight(t: f32) -> (Quat, Vec3, Vec3) {
+        let (amp, w) = (8f32.to_radians(), core::f32::consts::TAU);
+        let r = Attitude::new(amp * libm::sinf(w * t), 0.0, 0.0).world_from_body();
+        let g = Vec3::new(amp * w * libm::cosf(w * t), 0.0, 0.0);
+        (Quat::from_mat3(&r), g, Vec3::new(0.0, 0.0, GRAVITY))
+    }
+
     #[test]
     fn a_still_stretch_is_a_rest_once_it_has_lasted_longer_after_flight() {
         let p = MotionParams::default();
@@ -488,14 +496,8 @@ mod tests {
         assert!((waited - p.still_confirm_s).abs() < 0.051, "{waited} s");
         // Flying (rocking on the thrust), then as steady as a rest: still, not yet a rest, and the class
         // before it kept until `still_confirm_flying_s` has passed.
-        let amp = 8f32.to_radians();
-        let w = core::f32::consts::TAU;
         let mut d = MotionDetector::new(p);
-        let fly = reports(&mut d, 0, 3.0, |t| {
-            let r = Attitude::new(amp * libm::sinf(w * t), 0.0, 0.0).world_from_body();
-            let g = Vec3::new(amp * w * libm::cosf(w * t), 0.0, 0.0);
-            (Quat::from_mat3(&r), g, Vec3::new(0.0, 0.0, GRAVITY))
-        });
+        let fly = reports(&mut d, 0, 3.0, rocking_flight);
         assert_eq!(fly.last().unwrap().class, MotionClass::ThrustBorne);
         let r = reports(&mut d, 3_000_000, 3.0, calm);
         let first_still = r.iter().find(|r| r.class == MotionClass::Still).unwrap().block.end_us;
@@ -508,11 +510,7 @@ mod tests {
         }
         // Moving again before the rest is confirmed: the flight's class comes back at once.
         let mut d = MotionDetector::new(p);
-        reports(&mut d, 0, 3.0, |t| {
-            let r = Attitude::new(amp * libm::sinf(w * t), 0.0, 0.0).world_from_body();
-            let g = Vec3::new(amp * w * libm::cosf(w * t), 0.0, 0.0);
-            (Quat::from_mat3(&r), g, Vec3::new(0.0, 0.0, GRAVITY))
-        });
+        reports(&mut d, 0, 3.0, rocking_flight);
         let r = reports(&mut d, 3_000_000, 1.0, calm);
         assert!(r.iter().any(|r| r.class == MotionClass::Still) && !r.iter().any(|r| r.rest_confirmed));
         let r = reports(&mut d, 4_000_000, 0.1, |_| (level(), Vec3::new(0.5, 0.0, 0.0), Vec3::Z * GRAVITY));
@@ -550,14 +548,8 @@ mod tests {
         // not known to be a flight (it landed).
         let calm = |_: f32| (level(), Vec3::ZERO, Vec3::new(0.0, 0.0, GRAVITY));
         let wander = |t: f32| (level(), Vec3::new(0.0, 0.0, 0.3 * libm::sinf(6.0 * t)), Vec3::Z * GRAVITY);
-        let amp = 8f32.to_radians();
-        let w = core::f32::consts::TAU;
         let mut d = MotionDetector::new(MotionParams::default());
-        let fly = reports(&mut d, 0, 3.0, |t| {
-            let r = Attitude::new(amp * libm::sinf(w * t), 0.0, 0.0).world_from_body();
-            let g = Vec3::new(amp * w * libm::cosf(w * t), 0.0, 0.0);
-            (Quat::from_mat3(&r), g, Vec3::new(0.0, 0.0, GRAVITY))
-        });
+        let fly = reports(&mut d, 0, 3.0, rocking_flight);
         assert_eq!(fly.last().unwrap().class, MotionClass::ThrustBorne);
         // 12 s: the flight's tilt changes have left the spreads' window (2 s time constant).
         let hover = reports(&mut d, 3_000_000, 12.0, wander);
