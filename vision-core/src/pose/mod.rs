@@ -79,6 +79,9 @@ pub enum TranslationMethod {
     PaperLineHeight,
 }
 
+/// Default of [`PoseParams::edge_bias_px`] (px).
+pub const EDGE_BIAS_PX: f32 = 0.02;
+
 /// Solver options.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
@@ -92,6 +95,12 @@ pub struct PoseParams {
     pub check_ambiguity: bool,
     /// Lower bound of the per-point edge noise used for weights and covariance (px).
     pub min_sigma_px: f32,
+    /// Standard deviation of an error common to all points of one edge (px): optics blur, JPEG and
+    /// clipping move a whole edge, which the scatter of its points about their line does not show, so an
+    /// edge's offset is taken as known to no better than this (with the points' own `sigma / sqrt(n)`).
+    /// Without it, a blurred band's edges (0.02-0.05 px thin, docs/camera-effects.md) outweighed the IMU's
+    /// pitch and the reported uncertainty covered 83 % of y errors; 0 gives the points alone.
+    pub edge_bias_px: f32,
     /// `x` is reported as unknown when its standard deviation exceeds this (m).
     pub max_x_std_m: f32,
     /// Solutions whose reprojection RMS exceeds this are rejected (px).
@@ -112,6 +121,7 @@ impl Default for PoseParams {
             refine: true,
             check_ambiguity: true,
             min_sigma_px: 0.1,
+            edge_bias_px: EDGE_BIAS_PX,
             max_x_std_m: 0.02,
             max_rms_px: 1.0,
             distance_range_m: [0.2, 20.0],
@@ -246,6 +256,9 @@ struct Problem {
     body_from_camera: Mat3,
     /// With no end in view, `t` may not move along the line (unobservable): 5 parameters.
     fix_x: bool,
+    /// Standard deviation of an error common to all points of an edge (normalised units; see
+    /// [`PoseParams::edge_bias_px`]).
+    edge_bias: f32,
 }
 
 /// Columns of the translation parameters: all of `t`, or the two directions across the line.
@@ -287,7 +300,19 @@ impl Problem {
             let (p1, p2) = target.edge_points(e);
             edges[e as usize] = Some(EdgeTerm { stats: s, p1: p1 - origin, p2: p2 - origin });
         }
-        Problem { edges, inv_sigma: 1.0 / sigma, prior, body_from_camera: mount.body_from_camera, fix_x }
+        Problem {
+            edges,
+            inv_sigma: 1.0 / sigma,
+            prior,
+            body_from_camera: mount.body_from_camera,
+            fix_x,
+            edge_bias: 0.0,
+        }
+    }
+
+    /// The same problem with an edge-common error of `edge_bias` (normalised units) on each edge's offset.
+    fn with_edge_bias(self, edge_bias: f32) -> Self {
+        Problem { edge_bias, ..self }
     }
 
     fn n_params(&self) -> usize {
@@ -320,8 +345,12 @@ impl Problem {
             let n0 = s.normal;
             let t0 = n0.perp();
             let k = self.inv_sigma;
+            // The offset at the centroid is known to sigma / sqrt(n) from the points' scatter, and to no
+            // better than the edge-common error: its residual is scaled to the two together.
+            let kb = k * self.edge_bias;
+            let a0 = 1.0 / libm::sqrtf(1.0 + s.count as f32 * kb * kb);
             let vals = [
-                sq_n * (nv.dot(s.centroid) + d) * k,
+                a0 * sq_n * (nv.dot(s.centroid) + d) * k,
                 sq_n * s.spread * nv.dot(t0) * k,
                 sq_n * s.rms * nv.dot(n0) * k,
             ];
@@ -332,7 +361,7 @@ impl Problem {
                 Vec3::new(v.x, v.y, dz)
             };
             let grads = [
-                g2(s.centroid, nv * (-d), sq_n * k, sq_n * k / rho),
+                g2(s.centroid, nv * (-d), a0 * sq_n * k, a0 * sq_n * k / rho),
                 g2(t0, Vec2::ZERO, sq_n * s.spread * k, 0.0),
                 g2(n0, Vec2::ZERO, sq_n * s.rms * k, 0.0),
             ];
@@ -387,7 +416,8 @@ impl Problem {
         res[..n].iter().map(|v| v * v).sum()
     }
 
-    /// Mean squared point-to-line distance over all edge points (normalised units squared).
+    /// Mean squared point-to-line distance over all edge points (normalised units squared; of a problem
+    /// without an edge-common error).
     fn image_mse(&self, r_cw: &Mat3, t: Vec3) -> f32 {
         let mut res = [0.0; MAX_RES];
         let n_edges = self.edges.iter().flatten().count();
@@ -757,8 +787,13 @@ pub fn solve_pose(
         TranslationMethod::PaperLineHeight => translation_paper(&r0, obs, target, origin)?,
     };
     let sigma = pooled_sigma(obs, params.min_sigma_px / f_px);
-    let problem = Problem::new(obs, target, sigma, prior, mount, fix_x);
-    let image_only = Problem { prior: None, ..problem };
+    // The edge-common error weighs the edges against the IMU's gravity (how far biased edges may pull the
+    // tilt) and enters the reported covariance. The image alone is fitted to its points: the two minima's
+    // likelihood ratio and the reprojection error are about how well each pose fits them.
+    let image_only = Problem::new(obs, target, sigma, None, mount, fix_x);
+    let with_bias = Problem::new(obs, target, sigma, prior, mount, fix_x)
+        .with_edge_bias(params.edge_bias_px.max(0.0) / f_px);
+    let problem = if prior.is_some() { with_bias } else { image_only };
 
     let t0 = -r0.mul_vec(c0);
     let (mut r, mut t, mut iterations) = (r0, t0, 0u8);
@@ -813,7 +848,7 @@ pub fn solve_pose(
         return Err(PoseError::ReprojectionTooLarge);
     }
     let std = |v: f32| if v.is_finite() && v >= 0.0 { libm::sqrtf(v) } else { f32::INFINITY };
-    let cov = problem.center_covariance(&r, t);
+    let cov = with_bias.center_covariance(&r, t);
     let (mut position_std_m, yaw_std_rad) = match cov {
         Some((c, yv)) => (Vec3::new(std(c[0][0]), std(c[1][1]), std(c[2][2])), std(yv)),
         None => (Vec3::new(f32::INFINITY, f32::INFINITY, f32::INFINITY), f32::INFINITY),

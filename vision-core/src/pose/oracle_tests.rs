@@ -456,7 +456,8 @@ fn solve_pose_reports_the_vehicle_behind_an_offset_camera_and_its_covariance() {
     // The reported spread is the covariance of the pose the solver returns, with the pooled sigma.
     let sigma = pooled_sigma(&s.obs, params.min_sigma_px / CAM.focal_px());
     let up = Attitude::new(att.roll, att.pitch, 0.0).world_from_body().tmul_vec(Vec3::Z);
-    let p = Problem::new(&s.obs, &TARGET, sigma, Some((up, 0.01)), &mount, false);
+    let p = Problem::new(&s.obs, &TARGET, sigma, Some((up, 0.01)), &mount, false)
+        .with_edge_bias(params.edge_bias_px / CAM.focal_px());
     let r = sol.camera_from_world;
     let t = r.mul_vec(TARGET.center() - sol.camera_position_m);
     let (cov, yaw) = covariance_oracle(&p, &r, t);
