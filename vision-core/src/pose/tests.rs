@@ -325,6 +325,7 @@ fn a_band_read_thin_within_the_edge_error_is_covered_by_the_reported_spread() {
             1e3 * sol.position_std_m.z,
         );
     }
-    assert!(with_bias.position_std_m.z > 1.15 * points_only.position_std_m.z, "{with_bias:?}");
+    let widened = with_bias.position_std_m.z / points_only.position_std_m.z;
+    assert!(widened > 1.15 && widened < 1.3, "z std {widened} times the points' alone");
     assert!(z_sigmas(&with_bias) <= 1.6, "{with_bias:?}");
 }
