@@ -1,5 +1,7 @@
 //! Benchmark of the downward camera's optical flow: one frame pair at the default resolution (160x120) with
-//! the default features (an 8x6 grid), the downward renderer, and the flow's stages.
+//! the default features (an 8x6 grid), the downward renderer, and the flow's stages; then pairs at 320x240 and
+//! 640x480 with the parameters for their size (`FlowParams::for_image`: more features, wider windows, deeper
+//! pyramids, the whole-frame search, brightness gain and offset).
 use criterion::{Criterion, criterion_group, criterion_main};
 use geometry::frames::{Attitude, BODY_FROM_DOWN_CAMERA};
 use geometry::{Vec3, deg};
@@ -45,6 +47,29 @@ fn bench(c: &mut Criterion) {
     c.bench_function("flow_pair_160x120_without_repetition_check", |bch| {
         bch.iter(|| unchecked.between(black_box(&a), black_box(&b), Vec3::ZERO))
     });
+    for (w, h) in [(320u16, 240u16), (640, 480)] {
+        let mut s = Scenario::paper();
+        let k = w as f64 / s.down_camera.width_px as f64;
+        let cam = &mut s.down_camera;
+        (cam.width_px, cam.height_px) = (w, h);
+        (cam.fx_px, cam.fy_px) = (cam.fx_px * k, cam.fy_px * k);
+        (cam.cx_px, cam.cy_px) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+        let renderer = DownRenderer::new(&s).expect("renderer");
+        let mut settings = renderer.default_settings();
+        settings.seed = 1;
+        let a = renderer.render(&pose(0.0), &settings);
+        settings.seed = 2;
+        let b = renderer.render(&pose(1.0 / 60.0), &settings);
+        let mut flow = GroundFlow::new(&s);
+        let st = flow.between(&a, &b, Vec3::ZERO).expect("flow");
+        println!(
+            "flow pair {w}x{h}: {} of {} features tracked, median flow {:?} px",
+            st.inliers, st.selected, st.median_flow_px
+        );
+        c.bench_function(&format!("flow_pair_{w}x{h}"), |bch| {
+            bch.iter(|| flow.between(black_box(&a), black_box(&b), Vec3::ZERO))
+        });
+    }
 }
 
 criterion_group!(benches, bench);

@@ -25,7 +25,8 @@ pub struct GroundFlow(ground_station::vision::FlowTracker);
 impl GroundFlow {
     /// For the scenario's downward camera, with the default flow parameters.
     pub fn new(s: &Scenario) -> Self {
-        Self::with_params(s.down_camera_model(), FlowParams::default())
+        let camera = s.down_camera_model();
+        Self::with_params(camera, FlowParams::for_image(camera.width, camera.height))
     }
 
     /// For a camera and parameters.

@@ -22,17 +22,20 @@ use crate::image::Gray8View;
 use geometry::{Mat3, Quat, Vec2, Vec3};
 
 mod repetition;
+mod search;
 pub use repetition::Repetition;
 
 /// Pyramid levels at most.
-pub const MAX_LEVELS: usize = 3;
+pub const MAX_LEVELS: usize = 5;
 /// Largest frame the flow workspace holds.
-pub const FLOW_MAX_W: usize = 320;
+pub const FLOW_MAX_W: usize = 640;
 /// Largest frame height the flow workspace holds.
-pub const FLOW_MAX_H: usize = 240;
+pub const FLOW_MAX_H: usize = 480;
 /// Features tracked at most.
-pub const MAX_FEATURES: usize = 64;
-const MAX_WIN: usize = 13; // window side at most (half window 6)
+pub const MAX_FEATURES: usize = 512;
+/// Half side of the tracking window at most.
+pub const MAX_WINDOW_HALF: u8 = 20;
+const MAX_WIN: usize = 2 * MAX_WINDOW_HALF as usize + 1; // window side at most
 
 /// Why a frame pair gave no flow.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -114,6 +117,12 @@ pub struct FlowParams {
     /// difference below this fraction of the typical one repeats (tiles, grids): its pairs are refused
     /// (`flow::repetition`). 0 turns the check off.
     pub max_repetition_ratio: f32,
+    /// Search the whole frame's displacement within this many pixels of the predicted rotation's on the
+    /// coarsest level before tracking (`flow::search`), for motions beyond Lucas-Kanade's reach; 0: off.
+    pub search_px: f32,
+    /// Estimate a brightness gain and offset between each pair of windows with the displacement (vignetting,
+    /// exposure changes between frames, uneven light).
+    pub gain_offset: bool,
     /// Smooth the frames with a 3x3 binomial filter first (recommended unless the camera's images are
     /// already soft: it removes most of bilinear interpolation's sub-pixel bias).
     pub presmooth: bool,
@@ -135,6 +144,40 @@ impl Default for FlowParams {
             max_residual_px: 0.5,
             max_repetition_ratio: 0.25,
             presmooth: true,
+            gain_offset: false,
+            search_px: 0.0,
+        }
+    }
+}
+
+impl FlowParams {
+    /// The defaults scaled for a `width x height` frame: the defaults are for 160x120.
+    pub fn for_image(width: u16, height: u16) -> Self {
+        let d = Self::default();
+        // The frame's scale over 160x120 in whole octaves (a 200x150 frame is still 160x120's).
+        let k = (width as f32 / 160.0).max(height as f32 / 120.0);
+        let octaves = if k >= 1.0 { libm::floorf(libm::log2f(k) + 0.25) as u8 } else { 0 };
+        if octaves == 0 {
+            return d;
+        }
+        let scale = (1u32 << octaves.min(7)) as f32;
+        Self {
+            // A level more than the octaves: the reach, `(window_half + 1) 2^levels`, a third of the width
+            // or more (320x240: 176 px, 640x480: 672 px).
+            levels: (d.levels + 1 + octaves).min(MAX_LEVELS as u8),
+            // Half windows of 10 px at 320x240 (OpenCV's 21x21) and 20 px at 640x480: a window over the same
+            // part of the floor, a little wider than 160x120's.
+            window_half: ((5.0 * scale) as u8).min(MAX_WINDOW_HALF),
+            // Twice the cells per axis (192 features at most): the flow's noise falls with their number.
+            grid: [2 * d.grid[0], 2 * d.grid[1]],
+            // The same texture per unit of floor: gradients per pixel fall with the scale.
+            min_eigen: d.min_eigen / (scale * scale),
+            // Vignetting's static brightness read as motion: per-pair flow error p90 at 320x240 0.043 -> 0.028 px
+            // (tests/tests/flow_opencv.rs).
+            gain_offset: true,
+            // Reach: two fifths of the width searched whole (a third of it asked for).
+            search_px: 0.4 * width as f32,
+            ..d
         }
     }
 }
@@ -160,13 +203,14 @@ pub struct FlowStats {
     pub mean_sq: [f32; 3],
     /// Inlier tracks.
     pub inliers: u16,
-    /// Features selected.
+    /// Features selected whose predicted position in the later frame was in view (tracked).
     pub selected: u16,
     /// RMS residual of the inliers about the affine fit (normalised units).
     pub residual_rms: f32,
     /// Median raw displacement of the inliers (pixels), for reports.
     pub median_flow_px: Vec2,
-    /// Quality, 0 (unusable) to 1: the fraction of selected features that became inliers.
+    /// Quality, 0 (unusable) to 1: the fraction of the features tracked (selected and in view) that became
+    /// inliers.
     pub quality: f32,
 }
 
@@ -369,6 +413,19 @@ impl Pyramid {
                 11 => self.patch_n::<11, 12>(at, l.w, fx, fy, out),
                 13 => self.patch_n::<13, 14>(at, l.w, fx, fy, out),
                 15 => self.patch_n::<15, 16>(at, l.w, fx, fy, out),
+                17 => self.patch_n::<17, 18>(at, l.w, fx, fy, out),
+                19 => self.patch_n::<19, 20>(at, l.w, fx, fy, out),
+                21 => self.patch_n::<21, 22>(at, l.w, fx, fy, out),
+                23 => self.patch_n::<23, 24>(at, l.w, fx, fy, out),
+                25 => self.patch_n::<25, 26>(at, l.w, fx, fy, out),
+                27 => self.patch_n::<27, 28>(at, l.w, fx, fy, out),
+                29 => self.patch_n::<29, 30>(at, l.w, fx, fy, out),
+                31 => self.patch_n::<31, 32>(at, l.w, fx, fy, out),
+                33 => self.patch_n::<33, 34>(at, l.w, fx, fy, out),
+                35 => self.patch_n::<35, 36>(at, l.w, fx, fy, out),
+                37 => self.patch_n::<37, 38>(at, l.w, fx, fy, out),
+                39 => self.patch_n::<39, 40>(at, l.w, fx, fy, out),
+                41 => self.patch_n::<41, 42>(at, l.w, fx, fy, out),
                 _ => {
                     for (j, row) in out.chunks_exact_mut(n).take(n).enumerate() {
                         let r0 = at + j * l.w;
@@ -569,7 +626,7 @@ fn lk_level(
     let LkScratch { big, tpl, gxs, gys, cur } = sc;
     let (la, lb) = (a.levels[l], b.levels[l]);
     let clamp = l > 0;
-    let hw = params.window_half.min(6) as usize;
+    let hw = params.window_half.min(MAX_WINDOW_HALF) as usize;
     let side = 2 * hw + 1;
     let n = side + 2;
     // The template with a one-sample border for the central-difference gradients.
@@ -603,8 +660,12 @@ fn lk_level(
     let mut last = f32::INFINITY;
     let m = side * side;
     let hwf = hw as f32;
+    if params.gain_offset {
+        return lk_gain_offset(b, &lb, clamp, p, d, params, hw, [gxx, gxy, gyy], sc);
+    }
     for _ in 0..params.max_iterations {
-        if !b.patch(&lb, p.x + d.x - hwf, p.y + d.y - hwf, side, clamp, &mut cur[..]) {
+        let (x0, y0) = (p.x + d.x - hwf, p.y + d.y - hwf);
+        if !b.patch(&lb, x0, y0, side, clamp, &mut cur[..]) {
             return None;
         }
         // Eight independent partial sums (vectorisable without reassociating; the order is fixed, so the
@@ -633,16 +694,102 @@ fn lk_level(
     if l > 0 || last < 0.1 { Some(d) } else { None }
 }
 
+/// [`lk_level`]'s iterations with a brightness gain and offset between the windows estimated with the
+/// displacement: `b(x + d) = (1 + g) a(x) + o`. Vignetting (a brightness that stays with the camera while the
+/// floor moves under it), an exposure step between frames and uneven light all break plain Lucas-Kanade's
+/// brightness constancy, and what they leave is read as motion. The template (`sc.tpl`) and its gradients
+/// (`sc.gxs`, `sc.gys`, with their sums `g = [gxx, gxy, gyy]`) are filled by the caller.
+#[allow(clippy::too_many_arguments)]
+fn lk_gain_offset(
+    b: &Pyramid,
+    lb: &Level,
+    clamp: bool,
+    p: Vec2,
+    mut d: Vec2,
+    params: &FlowParams,
+    hw: usize,
+    g: [f32; 3],
+    sc: &mut LkScratch,
+) -> Option<Vec2> {
+    let LkScratch { tpl, gxs, gys, cur, .. } = sc;
+    let side = 2 * hw + 1;
+    let m = side * side;
+    let hwf = hw as f32;
+    // The gain acts on the template less its mean, so that it is orthogonal to the offset.
+    let mean = tpl[..m].iter().sum::<f32>() / m as f32;
+    let (mut gxt, mut gyt, mut gx1, mut gy1, mut tt) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
+    for k in 0..m {
+        let t = tpl[k] - mean;
+        gxt += gxs[k] * t;
+        gyt += gys[k] * t;
+        gx1 += gxs[k];
+        gy1 += gys[k];
+        tt += t * t;
+    }
+    // Normal matrix of the residual's Jacobian [gx, gy, -(t - mean), -1].
+    let h = [
+        [g[0], g[1], -gxt, -gx1],
+        [g[1], g[2], -gyt, -gy1],
+        [-gxt, -gyt, tt, 0.0],
+        [-gx1, -gy1, 0.0, m as f32],
+    ];
+    let mut hinv = [[0.0f32; 4]; 4];
+    if !geometry::solve::spd_inverse(&h, &mut hinv, 4) {
+        return None;
+    }
+    let (mut gain, mut offset) = (0.0f32, 0.0f32);
+    let mut last = f32::INFINITY;
+    for _ in 0..params.max_iterations {
+        if !b.patch(lb, p.x + d.x - hwf, p.y + d.y - hwf, side, clamp, &mut cur[..]) {
+            return None;
+        }
+        let (mut sx, mut sy, mut st, mut s1) = ([0.0f32; 8], [0.0f32; 8], [0.0f32; 8], [0.0f32; 8]);
+        for (((c, t), gx), gy) in
+            cur[..m].chunks(8).zip(tpl[..m].chunks(8)).zip(gxs[..m].chunks(8)).zip(gys[..m].chunks(8))
+        {
+            for i in 0..c.len() {
+                let tc = t[i] - mean;
+                let e = c[i] - t[i] - gain * tc - offset;
+                sx[i] += e * gx[i];
+                sy[i] += e * gy[i];
+                st[i] += e * tc;
+                s1[i] += e;
+            }
+        }
+        let jte = [
+            sx.iter().sum::<f32>(),
+            sy.iter().sum::<f32>(),
+            -st.iter().sum::<f32>(),
+            -s1.iter().sum::<f32>(),
+        ];
+        let mut step = [0.0f32; 4];
+        for (r, row) in step.iter_mut().zip(&hinv) {
+            *r = -(row[0] * jte[0] + row[1] * jte[1] + row[2] * jte[2] + row[3] * jte[3]);
+        }
+        d += Vec2::new(step[0], step[1]);
+        gain += step[2];
+        offset += step[3];
+        last = libm::sqrtf(step[0] * step[0] + step[1] * step[1]);
+        if last < if clamp { params.epsilon_px.max(0.05) } else { params.epsilon_px } {
+            return Some(d);
+        }
+    }
+    if clamp || last < 0.1 { Some(d) } else { None }
+}
+
 /// Pyramidal Lucas-Kanade of the point `p` (level 0) from `a` to `b`, starting from `guess` (level 0).
+/// At most `max_levels` levels are used (the finest ones): a guess from the whole-frame search is already within
+/// a pixel of the coarsest level but one.
 fn track(
     a: &Pyramid,
     b: &Pyramid,
     p: Vec2,
     guess: Vec2,
+    max_levels: usize,
     params: &FlowParams,
     sc: &mut LkScratch,
 ) -> Option<Vec2> {
-    let levels = a.n.min(b.n);
+    let levels = a.n.min(b.n).min(max_levels).max(1);
     let top = levels - 1;
     let s = (1 << top) as f32;
     let mut d = guess * (1.0 / s);
@@ -719,10 +866,33 @@ pub fn add_frame(
     }
     let mut n = 0;
     let rot = Quat::from_rotvec(predicted_rotation).to_mat3();
+    // The whole frame's displacement beyond the predicted rotation's (`flow::search`), when searched.
+    let mut extra = Vec2::ZERO;
+    let mut max_levels = MAX_LEVELS;
+    if params.search_px > 0.0 {
+        let centre = Vec2::new(camera.cx, camera.cy);
+        let predicted = rotational_px(camera, centre, &rot);
+        if let Some(shift) = search::whole_frame_shift(a, b, predicted, params.search_px) {
+            extra = shift - predicted;
+            // Within half a pixel of the coarsest level: Lucas-Kanade starts a level below it (a pair at
+            // 640x480 then costs 4 levels' tracking instead of 5).
+            max_levels = a.n.min(b.n).saturating_sub(1);
+        }
+    }
+    // Features whose guessed end lies outside the later frame have left the view: they are neither tracked nor
+    // counted in the quality (a large motion is not inconsistent for losing them).
+    let margin = params.window_half.min(MAX_WINDOW_HALF) as f32 + 1.0;
+    let (w, h) = (b.levels[0].w as f32, b.levels[0].h as f32);
+    let mut n_view = 0;
     for k in 0..n_sel {
         let p = ws.feats[k];
-        let guess = rotational_px(camera, p, &rot);
-        let Some(d) = track(a, b, p, guess, params, &mut ws.lk) else { continue };
+        let guess = rotational_px(camera, p, &rot) + extra;
+        let end = p + guess;
+        if !(end.x >= margin && end.y >= margin && end.x <= w - 1.0 - margin && end.y <= h - 1.0 - margin) {
+            continue;
+        }
+        n_view += 1;
+        let Some(d) = track(a, b, p, guess, max_levels, params, &mut ws.lk) else { continue };
         // Forward-backward: track the end point back (at full resolution, from the forward result) and
         // require the start point again.
         let Some(back) = lk_level(b, a, 0, p + d, -d, params, &mut ws.lk) else { continue };
@@ -737,7 +907,7 @@ pub fn add_frame(
     ws.inlier[..n].fill(false);
     let stats = aggregate(
         &ws.tracks[..n],
-        n_sel,
+        n_view,
         camera,
         params,
         predicted_rotation,
@@ -1130,6 +1300,58 @@ mod tests {
     }
 
     #[test]
+    fn repeating_floors_give_no_confident_wrong_flow_at_320x240_and_640x480() {
+        // The parameters for larger frames search the whole frame's displacement first, which on a tiling
+        // finds the alias as readily as the truth: the pair must still be refused (or its quality under the
+        // flight code's gate), never a confident wrong flow. Tilings of 16 and 40 px, shifted by 0.5-0.8 of one.
+        for (w, h) in [(320usize, 240usize), (640, 480)] {
+            for period in [16.0f32, 40.0] {
+                for frac in [0.5f32, 0.65, 0.8] {
+                    let frame = |d: f32| {
+                        let k = core::f32::consts::TAU / period;
+                        let mut img = vec![0u8; w * h];
+                        for y in 0..h {
+                            for x in 0..w {
+                                let (u, v) = (x as f32 + d, y as f32);
+                                let s = (k * u).sin() + (k * v).sin() + 0.5 * (2.0 * k * (u + v) + 1.0).cos();
+                                img[y * w + x] = (128.0 + 35.0 * s).round() as u8;
+                            }
+                        }
+                        img
+                    };
+                    let shift = frac * period;
+                    let (a, b) = (frame(0.0), frame(-shift));
+                    let camera = CameraModel {
+                        width: w as u16,
+                        height: h as u16,
+                        fx: 139.0 * w as f32 / 160.0,
+                        fy: 139.0 * w as f32 / 160.0,
+                        cx: (w as f32 - 1.0) / 2.0,
+                        cy: (h as f32 - 1.0) / 2.0,
+                        distortion: Default::default(),
+                    };
+                    let params = FlowParams::for_image(w as u16, h as u16);
+                    let mut ws = Box::new(FlowWorkspace::new());
+                    let (va, vb) =
+                        (Gray8View::packed(&a, w, h).unwrap(), Gray8View::packed(&b, w, h).unwrap());
+                    match flow_between(&va, &vb, &camera, &params, Vec3::ZERO, &mut ws) {
+                        Err(_) => {}
+                        Ok(st) => {
+                            let wrong = (st.median_flow_px.x - shift).abs() > 0.5;
+                            assert!(
+                                !wrong || st.quality < 0.5,
+                                "{w}x{h}, period {period} px shifted {shift} px: {:?} at quality {}",
+                                st.median_flow_px,
+                                st.quality
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
     fn natural_floors_are_not_taken_for_repeating_ones() {
         for contrast in [0.5f32, 1.0] {
             for &(sx, sy) in &[(0.4f32, 0.3f32), (3.0, -2.0), (-2.3, 3.1), (6.0, 0.0)] {
@@ -1155,8 +1377,8 @@ mod tests {
         let truth = Vec2::new(-60.0, 10.0);
         let near = |d: Option<Vec2>| d.is_some_and(|d| (d - truth).norm() < 0.05);
         let mut sc = LkScratch::new();
-        assert!(!near(track(&ws.pyr[0], &ws.pyr[1], p, Vec2::ZERO, &params, &mut sc)));
-        let d = track(&ws.pyr[0], &ws.pyr[1], p, truth + Vec2::new(2.0, -2.0), &params, &mut sc);
+        assert!(!near(track(&ws.pyr[0], &ws.pyr[1], p, Vec2::ZERO, MAX_LEVELS, &params, &mut sc)));
+        let d = track(&ws.pyr[0], &ws.pyr[1], p, truth + Vec2::new(2.0, -2.0), MAX_LEVELS, &params, &mut sc);
         assert!(near(d), "{d:?}");
     }
 

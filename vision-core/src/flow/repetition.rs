@@ -12,8 +12,10 @@
 //! repeating one dips back toward zero at each repetition. The frame repeats when some offset with
 //! `|s|_inf >= 2` is a local minimum (among its eight neighbours) whose difference is below
 //! `max_repetition_ratio` times the plateau (the median difference over the offsets). Repetitions of 2-6 px are
-//! looked for on pyramid level 0, of 4-12 px on level 1, and longer ones, up to 2.5 times the tracking's reach,
-//! on an image half the size of the pyramid's coarsest level (a quarter of the cost of searching that level).
+//! looked for on pyramid level 0, of 4-12 px on level 1, 8-24 px on level 2 and so on up the pyramid, and
+//! longer ones, up to 2.5 times the tracking's reach (or the whole-frame search's, `flow::search`), on an image
+//! half the size of the pyramid's coarsest level (a quarter of the cost of searching that level). Each level is
+//! needed: a tiling of 40 px is 2.5 px on the coarse image of a five-level pyramid, blurred away there.
 //!
 //! A found repetition refuses the pair only when the flow is at least [`ALIAS_FRACTION`] of it: the alias of a
 //! shift by `f` of a repetition is `1 - f` of it, while a small true motion on a floor that repeats far away
@@ -82,7 +84,9 @@ pub(super) fn find(p: &Pyramid, params: &FlowParams, sc: &mut Scratch) -> Option
     // The tracking reaches (window_half + 1) 2^levels px from its start. Shifted by d, more than half a
     // repetition P, the alias d - P is within that reach for every P up to twice the reach, and for somewhat
     // longer ones once d itself is beyond it: repetitions up to 2.5 times the reach are looked for.
-    let reach = (params.window_half.min(6) as usize + 1) << p.n;
+    // The whole-frame search (`flow::search`) reaches further still, and finds an alias as readily.
+    let lk_reach = (params.window_half.min(super::MAX_WINDOW_HALF) as usize + 1) << p.n;
+    let reach = lk_reach.max(params.search_px.max(0.0) as usize);
     let top = level(p.n - 1);
     // The coarse image: 2x2 means of the coarsest level.
     let (cw, ch) = (top.w / 2, top.h / 2);
@@ -97,16 +101,14 @@ pub(super) fn find(p: &Pyramid, params: &FlowParams, sc: &mut Scratch) -> Option
         }
     }
     let mut best: Option<Repetition> = None;
-    for step in 0..3 {
-        let (img, r) = match step {
-            0 => (level(0), FINE_R),
-            1 if p.n > 1 => (level(1), FINE_R),
-            2 => {
-                let scale = 2 * top.scale;
-                let img = Image { data: &sc.coarse[..cw * ch], w: cw, h: ch, scale };
-                (img, (5 * reach / 2).div_ceil(scale))
-            }
-            _ => continue,
+    // Every level (repetitions of 2-6 of its pixels), then the coarse image.
+    for step in 0..=p.n {
+        let (img, r) = if step < p.n {
+            (level(step), FINE_R)
+        } else {
+            let scale = 2 * top.scale;
+            let img = Image { data: &sc.coarse[..cw * ch], w: cw, h: ch, scale };
+            (img, (5 * reach / 2).div_ceil(scale))
         };
         let Scratch { map, ring, .. } = sc;
         if let Some(rep) = search(img, r, params.max_repetition_ratio, map, ring)
