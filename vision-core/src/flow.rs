@@ -60,7 +60,7 @@ impl NoFlowReason {
     /// Short explanation.
     pub fn describe(&self) -> &'static str {
         match self {
-            NoFlowReason::BadImageSize => "the frames differ in size or exceed 320x240",
+            NoFlowReason::BadImageSize => "the frames differ in size or exceed 640x480",
             NoFlowReason::NoTexture => "the floor shows no texture to track",
             NoFlowReason::TooFewTracks => {
                 "too few features could be tracked (motion beyond reach, blur, or occlusion)"
@@ -91,9 +91,9 @@ impl NoFlowReason {
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize, postcard_schema::Schema))]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FlowParams {
-    /// Pyramid levels (1 to 3).
+    /// Pyramid levels (1 to [`MAX_LEVELS`]).
     pub levels: u8,
-    /// Half side of the tracking window (window `2h + 1` pixels, h up to 6).
+    /// Half side of the tracking window (window `2h + 1` pixels, h up to [`MAX_WINDOW_HALF`]).
     pub window_half: u8,
     /// Iteration limit per level.
     pub max_iterations: u8,
@@ -459,7 +459,7 @@ impl Pyramid {
     }
 }
 
-/// Buffers of the flow (about 200 KB: two pyramids of up to 320x240). One per downward camera.
+/// Buffers of the flow (about 0.9 MB: two pyramids of up to 640x480). One per downward camera.
 pub struct FlowWorkspace {
     pyr: [Pyramid; 2],
     prev: usize,
