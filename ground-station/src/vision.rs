@@ -251,6 +251,11 @@ impl FlowTracker {
         self.ws.repetition()
     }
 
+    /// The last pair's counts (selected, in view, tracked, inliers, the fit's residual), also when refused.
+    pub fn last_counts(&self) -> flow::PairCounts {
+        self.ws.last_counts()
+    }
+
     /// The last pair's tracks (position px, displacement px, inlier), for display.
     pub fn last_tracks(&self) -> impl Iterator<Item = (geometry::Vec2, geometry::Vec2, bool)> + '_ {
         self.ws.last_tracks()

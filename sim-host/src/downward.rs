@@ -69,6 +69,11 @@ impl GroundFlow {
         self.0.repetition()
     }
 
+    /// The last pair's counts (selected, in view, tracked, inliers, the fit's residual), also when refused.
+    pub fn last_counts(&self) -> vision_core::flow::PairCounts {
+        self.0.last_counts()
+    }
+
     /// The last pair's tracks (position px, displacement px, inlier), for display.
     pub fn last_tracks(&self) -> impl Iterator<Item = (geometry::Vec2, geometry::Vec2, bool)> + '_ {
         self.0.last_tracks()
@@ -140,11 +145,33 @@ pub fn flow_json(s: &FlowStats, fx_px: f32, velocity_body: Option<[f32; 2]>) -> 
     v
 }
 
-/// The JSON of a frame pair without flow; for a repeating floor, where it repeats (`repeats_every_px`, the
-/// offset in pixels of the earlier frame) and how well (`repetition_ratio`: the match there over the typical
-/// one, 0 for a perfect repetition).
-pub fn no_flow_json(why: NoFlowReason, repetition: Option<vision_core::flow::Repetition>) -> Value {
-    let mut v = json!({"status": "no_flow", "reason": why.code(), "message": why.describe(), "quality": 0.0});
+/// The JSON of a frame pair without flow: the reason, and the numbers behind it (`counts` of the pair) against
+/// the limits that refused it (`params`, the flow's); for a repeating floor, where it repeats
+/// (`repeats_every_px`, the offset in pixels of the earlier frame) and how well (`repetition_ratio`: the match
+/// there over the typical one, 0 for a perfect repetition).
+pub fn no_flow_json(
+    why: NoFlowReason,
+    repetition: Option<vision_core::flow::Repetition>,
+    counts: &vision_core::flow::PairCounts,
+    params: &FlowParams,
+) -> Value {
+    let residual = counts.residual_px.is_finite().then_some(counts.residual_px);
+    let mut v = json!({
+        "status": "no_flow",
+        "reason": why.code(),
+        "message": why.describe(),
+        "selected": counts.selected,
+        "in_view": counts.in_view,
+        "tracked": counts.tracked,
+        "inliers": counts.inliers,
+        "quality": counts.quality(),
+        "residual_px": residual,
+        "limits": {
+            "min_tracks": params.min_tracks,
+            "min_quality": params.min_quality,
+            "max_residual_px": params.max_residual_px,
+        },
+    });
     if let Some(r) = repetition {
         v["repeats_every_px"] = json!([r.offset_px.x, r.offset_px.y]);
         v["repetition_ratio"] = json!(r.ratio);

@@ -66,7 +66,8 @@ impl NoFlowReason {
                 "too few features could be tracked (motion beyond reach, blur, or occlusion)"
             }
             NoFlowReason::Inconsistent => {
-                "the tracks disagree on the flow (motion beyond reach on a repetitive floor?)"
+                "the tracks disagree on one motion of the floor (parts of the view moving differently, or motion \
+                 beyond reach on a repetitive floor)"
             }
             NoFlowReason::RepeatingTexture => {
                 "the floor repeats within the tracking's reach, so the flow could be an alias"
@@ -212,6 +213,28 @@ pub struct FlowStats {
     /// Quality, 0 (unusable) to 1: the fraction of the features tracked (selected and in view) that became
     /// inliers.
     pub quality: f32,
+}
+
+/// What the last pair came to, also when it was refused: the numbers behind a [`NoFlowReason`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PairCounts {
+    /// Features selected in the earlier frame.
+    pub selected: u16,
+    /// Of those, the ones whose predicted position was in view in the later frame (tracked).
+    pub in_view: u16,
+    /// Tracks that converged and came back in the forward-backward check.
+    pub tracked: u16,
+    /// Inliers of the flow field's fit (0 before a fit).
+    pub inliers: u16,
+    /// RMS residual of the inliers about the fit (px; NaN before a fit).
+    pub residual_px: f32,
+}
+
+impl PairCounts {
+    /// Inliers over the features in view (the flow's quality).
+    pub fn quality(&self) -> f32 {
+        self.inliers as f32 / self.in_view.max(1) as f32
+    }
 }
 
 /// A velocity from the flow.
@@ -472,6 +495,7 @@ pub struct FlowWorkspace {
     lk: LkScratch,
     rep_scratch: repetition::Scratch,
     repetition: Option<Repetition>,
+    counts: PairCounts,
 }
 
 impl Default for FlowWorkspace {
@@ -495,12 +519,14 @@ impl FlowWorkspace {
             lk: LkScratch::new(),
             rep_scratch: repetition::Scratch::new(),
             repetition: None,
+            counts: PairCounts { selected: 0, in_view: 0, tracked: 0, inliers: 0, residual_px: f32::NAN },
         }
     }
 
     /// Forgets the previous frame.
     pub fn reset(&mut self) {
         self.has_prev = false;
+        self.counts = PairCounts { residual_px: f32::NAN, ..PairCounts::default() };
         self.repetition = None;
         self.n_tracks = 0;
     }
@@ -510,6 +536,12 @@ impl FlowWorkspace {
     /// frame, a reset, or a pair refused before tracking.
     pub fn last_tracks(&self) -> impl Iterator<Item = (Vec2, Vec2, bool)> + '_ {
         self.tracks[..self.n_tracks].iter().zip(&self.inlier).map(|(&(p, d), &ok)| (p, d, ok))
+    }
+
+    /// The counts of the last pair (zero after a first frame or a reset): how many features were selected, in
+    /// view, tracked and inliers, and the fit's residual, which say in numbers why a pair was refused.
+    pub fn last_counts(&self) -> PairCounts {
+        self.counts
     }
 
     /// The repetition that made the last pair [`NoFlowReason::RepeatingTexture`] (None after any other
@@ -839,6 +871,7 @@ pub fn add_frame(
     ws: &mut FlowWorkspace,
 ) -> Result<Option<FlowStats>, NoFlowReason> {
     ws.n_tracks = 0;
+    ws.counts = PairCounts { residual_px: f32::NAN, ..PairCounts::default() };
     if img.width() > FLOW_MAX_W
         || img.height() > FLOW_MAX_H
         || img.width() != camera.width as usize
@@ -861,6 +894,7 @@ pub fn add_frame(
     }
     ws.repetition = None;
     let n_sel = select_features(a, params, &mut ws.feats);
+    ws.counts.selected = n_sel as u16;
     if n_sel == 0 {
         return Err(NoFlowReason::NoTexture);
     }
@@ -903,6 +937,8 @@ pub fn add_frame(
         n += 1;
     }
     ws.n_tracks = n;
+    ws.counts.in_view = n_view as u16;
+    ws.counts.tracked = n as u16;
     // A pair refused by the aggregation keeps no inliers.
     ws.inlier[..n].fill(false);
     let stats = aggregate(
@@ -913,6 +949,7 @@ pub fn add_frame(
         predicted_rotation,
         &mut ws.inlier,
         &mut ws.scratch,
+        &mut ws.counts,
     )?;
     // On a repeating floor a flow of a sizeable fraction of the repetition may be the alias of a longer
     // motion (`flow::repetition`); a small one is not (its alias would be a motion of most of a repetition).
@@ -942,7 +979,17 @@ pub fn stats_from_tracks(
     let n = tracks.len().min(MAX_FEATURES);
     let mut inlier = [false; MAX_FEATURES];
     let mut scratch = [0.0f32; MAX_FEATURES];
-    aggregate(&tracks[..n], selected.max(n), camera, params, predicted_rotation, &mut inlier, &mut scratch)
+    let mut counts = PairCounts::default();
+    aggregate(
+        &tracks[..n],
+        selected.max(n),
+        camera,
+        params,
+        predicted_rotation,
+        &mut inlier,
+        &mut scratch,
+        &mut counts,
+    )
 }
 
 /// Flow between two frames (a convenience over [`add_frame`]).
@@ -966,7 +1013,9 @@ fn median_of(v: &mut [f32]) -> f32 {
     if m % 2 == 1 { *hi } else { 0.5 * (*hi + lo.iter().copied().fold(f32::NEG_INFINITY, f32::max)) }
 }
 
-/// Affine flow fit with MAD rejection, then the inliers' statistics.
+/// Affine flow fit with MAD rejection, then the inliers' statistics. The fit's inliers and residual go to
+/// `counts` (also when the pair is refused).
+#[allow(clippy::too_many_arguments)]
 fn aggregate(
     tracks: &[(Vec2, Vec2)],
     selected: usize,
@@ -975,6 +1024,7 @@ fn aggregate(
     predicted_rotation: Vec3,
     inlier: &mut [bool; MAX_FEATURES],
     scratch: &mut [f32; MAX_FEATURES],
+    counts: &mut PairCounts,
 ) -> Result<FlowStats, NoFlowReason> {
     let n = tracks.len();
     if n < params.min_tracks as usize {
@@ -995,6 +1045,7 @@ fn aggregate(
     for _ in 0..3 {
         // Least squares of disp = c + A (pos - centroid) per axis, over the inliers.
         let m = inlier[..n].iter().filter(|k| **k).count();
+        counts.inliers = m as u16;
         if m < params.min_tracks as usize {
             return Err(NoFlowReason::TooFewTracks);
         }
@@ -1051,6 +1102,7 @@ fn aggregate(
     }
     let idx = |k: &usize| inlier[*k];
     let m = (0..n).filter(idx).count();
+    counts.inliers = m as u16;
     if m < params.min_tracks as usize {
         return Err(NoFlowReason::TooFewTracks);
     }
@@ -1085,6 +1137,7 @@ fn aggregate(
     let flow = Vec2::new(median(&|k| derot(k).x), median(&|k| derot(k).y));
     let med = Vec2::new(median(&|k| tracks[k].1.x), median(&|k| tracks[k].1.y));
     let residual_rms = libm::sqrtf(rss * inv);
+    counts.residual_px = residual_rms * f;
     let quality = m as f32 / selected.max(1) as f32;
     if quality < params.min_quality || residual_rms * f > params.max_residual_px {
         return Err(NoFlowReason::Inconsistent);

@@ -193,7 +193,7 @@ pub(crate) fn vision_flow(a: &FlowArgs) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Err(why) => {
-            println!("{}", no_flow_json(why, flow.repetition()));
+            println!("{}", no_flow_json(why, flow.repetition(), &flow.last_counts(), flow.params()));
             Ok(ExitCode::from(2))
         }
     }
