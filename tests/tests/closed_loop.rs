@@ -55,8 +55,8 @@ fn with_every_camera_effect_on() {
     // The built-in `webcam` scenario: the forward camera sRGB, with a wide-angle lens (k1 -0.3, k2 0.08),
     // 1 px optics blur, 30 % vignetting, auto exposure changing by up to 30 % between frames, a 10 ms exposure
     // (motion blur), a rolling shutter of 30 us per row (corrected with the telemetry's rates) and MJPEG at
-    // quality 85; one sweep. Measured from the CLI, two sweeps, seeds 1-5: RMS x 6.6-9.0, y 4.0-5.0, z
-    // 10.4-13.8 mm.
+    // quality 85; one sweep. Measured from the CLI (`sim-host fly --scenario webcam --seed N`), two sweeps,
+    // seeds 1-5, 2026-12-07: RMS x 7.2-9.8, y 4.0-5.1, z 10.7-14.5 mm.
     let mut s = Scenario::load("webcam").unwrap();
     s.trajectory.sweeps = 1;
     let st = fly(&s, 1, CameraMode::Rendered);
