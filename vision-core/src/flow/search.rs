@@ -87,3 +87,91 @@ fn ncc(a: &[u8], b: &[u8], l: &Level, dx: i32, dy: i32) -> Option<f32> {
     let vb = sbb as f64 / n as f64 - mb * mb;
     (va > 1e-6 && vb > 1e-6).then(|| (vab / libm::sqrt(va * vb)) as f32)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::image::Gray8View;
+    extern crate std;
+    use std::boxed::Box;
+    use std::vec::Vec;
+
+    /// Random values on a lattice of 3 px, interpolated bilinearly, sampled at `(x + dx, y + dy)`.
+    fn texture(w: usize, h: usize, dx: i64, dy: i64) -> Vec<u8> {
+        let value = |i: i64, j: i64| {
+            let mut z = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+            z ^= z >> 29;
+            z = z.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z ^= z >> 32;
+            (z % 1000) as f32 / 1000.0
+        };
+        let mut img = std::vec![0u8; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let (u, v) = ((x as i64 + dx) as f32 / 3.0, (y as i64 + dy) as f32 / 3.0);
+                let (i, j) = (libm::floorf(u), libm::floorf(v));
+                let (fu, fv) = (u - i, v - j);
+                let (i, j) = (i as i64, j as i64);
+                let s = value(i, j) * (1.0 - fu) * (1.0 - fv)
+                    + value(i + 1, j) * fu * (1.0 - fv)
+                    + value(i, j + 1) * (1.0 - fu) * fv
+                    + value(i + 1, j + 1) * fu * fv;
+                img[y * w + x] = (60.0 + 120.0 * s) as u8;
+            }
+        }
+        img
+    }
+
+    fn pyramid(img: &[u8], w: usize, h: usize, levels: usize) -> Box<Pyramid> {
+        let mut p = Box::new(Pyramid::new());
+        p.build(&Gray8View::packed(img, w, h).unwrap(), levels, false);
+        p
+    }
+
+    #[test]
+    fn the_correlation_is_one_for_the_same_image_under_any_gain_and_offset() {
+        let (w, h) = (40usize, 30usize);
+        let a = texture(w, h, 0, 0);
+        let l = Level { w, h, off: 0 };
+        assert_eq!(ncc(&a, &a, &l, 0, 0), Some(1.0));
+        let brighter: Vec<u8> = a.iter().map(|&v| (v as u32 * 5 / 4 + 10) as u8).collect();
+        assert!((ncc(&a, &brighter, &l, 0, 0).unwrap() - 1.0).abs() < 0.01);
+        let inverted: Vec<u8> = a.iter().map(|&v| 255 - v).collect();
+        assert!((ncc(&a, &inverted, &l, 0, 0).unwrap() + 1.0).abs() < 1e-6);
+        // The second image shifted by (5, -3): matched there and only there.
+        let b = texture(w, h, -5, 3);
+        assert!((ncc(&a, &b, &l, 5, -3).unwrap() - 1.0).abs() < 1e-6);
+        assert!(ncc(&a, &b, &l, 0, 0).unwrap() < 0.5 && ncc(&a, &b, &l, 4, -3).unwrap() < 0.95);
+        // Overlaps under 30 % of the image, or of no texture, are not measured.
+        assert!(ncc(&a, &b, &l, 30, 0).is_none() && ncc(&a, &b, &l, 0, 22).is_none());
+        assert!(ncc(&a, &b, &l, 25, 0).is_some() && ncc(&a, &b, &l, 0, 18).is_some());
+        assert!(ncc(&a, &b, &l, 40, 0).is_none() && ncc(&a, &b, &l, -40, 0).is_none());
+        let flat = std::vec![77u8; w * h];
+        assert!(ncc(&a, &flat, &l, 0, 0).is_none() && ncc(&flat, &a, &l, 0, 0).is_none());
+    }
+
+    #[test]
+    fn the_search_finds_the_shift_around_its_centre_within_its_radius() {
+        let (w, h) = (320usize, 240usize);
+        let a = texture(w, h, 0, 0);
+        // The content moves by (96, -40) px: 12 and -5 px of the 40x30 coarsest level of four.
+        let b = texture(w, h, -96, 40);
+        let (pa, pb) = (pyramid(&a, w, h, 4), pyramid(&b, w, h, 4));
+        let truth = Vec2::new(96.0, -40.0);
+        for centre in [Vec2::ZERO, Vec2::new(60.0, -20.0), Vec2::new(130.0, -70.0)] {
+            let found = whole_frame_shift(&pa, &pb, centre, 110.0).unwrap();
+            assert_eq!(found, truth, "from {centre:?}");
+        }
+        // A radius that does not reach the truth from the centre: not the truth.
+        let found = whole_frame_shift(&pa, &pb, Vec2::ZERO, 60.0);
+        assert!(found != Some(truth), "{found:?}");
+        assert!(found.is_none_or(|f| f.x.abs() <= 64.0 && f.y.abs() <= 64.0), "{found:?}");
+        // Frames of different sizes are not compared.
+        let small = texture(160, 120, 0, 0);
+        assert_eq!(whole_frame_shift(&pa, &pyramid(&small, 160, 120, 4), Vec2::ZERO, 110.0), None);
+        // A blank later frame correlates with nothing.
+        let blank = std::vec![90u8; w * h];
+        assert_eq!(whole_frame_shift(&pa, &pyramid(&blank, w, h, 4), Vec2::ZERO, 110.0), None);
+    }
+}
