@@ -147,6 +147,9 @@ mod tests {
         assert!(ncc(&a, &b, &l, 30, 0).is_none() && ncc(&a, &b, &l, 0, 22).is_none());
         assert!(ncc(&a, &b, &l, 25, 0).is_some() && ncc(&a, &b, &l, 0, 18).is_some());
         assert!(ncc(&a, &b, &l, 40, 0).is_none() && ncc(&a, &b, &l, -40, 0).is_none());
+        // A tiny image: at least 16 pixels of overlap as well.
+        let (t, lt) = (texture(6, 6, 0, 0), Level { w: 6, h: 6, off: 0 });
+        assert!(ncc(&t, &t, &lt, 2, 2).is_some() && ncc(&t, &t, &lt, 2, 3).is_none());
         let flat = std::vec![77u8; w * h];
         assert!(ncc(&a, &flat, &l, 0, 0).is_none() && ncc(&flat, &a, &l, 0, 0).is_none());
     }
@@ -163,6 +166,8 @@ mod tests {
             let found = whole_frame_shift(&pa, &pb, centre, 110.0).unwrap();
             assert_eq!(found, truth, "from {centre:?}");
         }
+        // A small radius about a centre near the truth.
+        assert_eq!(whole_frame_shift(&pa, &pb, Vec2::new(100.0, -36.0), 20.0), Some(truth));
         // A radius that does not reach the truth from the centre: not the truth.
         let found = whole_frame_shift(&pa, &pb, Vec2::ZERO, 60.0);
         assert!(found != Some(truth), "{found:?}");
@@ -170,6 +175,8 @@ mod tests {
         // Frames of different sizes are not compared.
         let small = texture(160, 120, 0, 0);
         assert_eq!(whole_frame_shift(&pa, &pyramid(&small, 160, 120, 4), Vec2::ZERO, 110.0), None);
+        let shorter = texture(w, 200, -96, 40);
+        assert_eq!(whole_frame_shift(&pa, &pyramid(&shorter, w, 200, 4), Vec2::ZERO, 110.0), None);
         // A blank later frame correlates with nothing.
         let blank = std::vec![90u8; w * h];
         assert_eq!(whole_frame_shift(&pa, &pyramid(&blank, w, h, 4), Vec2::ZERO, 110.0), None);
