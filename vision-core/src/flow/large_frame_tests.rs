@@ -120,7 +120,8 @@ fn an_exposure_step_is_not_read_as_motion() {
         let (r, counts) = flow(&a, &b, w, h, &params);
         let st = r.unwrap_or_else(|e| panic!("gain {gain} offset {offset}: {e:?}, {counts:?}"));
         let m = st.median_flow_px;
-        assert!((m.x - sx).abs() < 0.01 && (m.y - sy).abs() < 0.01, "gain {gain} offset {offset}: {m:?}");
+        // Measured 0.0015-0.0037 px; a gain or offset estimated wrong leaves plain tracking's 0.005-0.017.
+        assert!((m - Vec2::new(sx, sy)).norm() < 0.0045, "gain {gain} offset {offset}: {m:?}");
         assert!(st.quality > 0.9, "{st:?}");
         // Plain Lucas-Kanade on the same pair: refused or further off.
         let (r, _) = flow(&a, &b, w, h, &FlowParams { gain_offset: false, ..params });
@@ -150,4 +151,22 @@ fn a_pair_s_counts_add_up_and_give_its_quality() {
     assert_eq!(r.err(), Some(NoFlowReason::NoTexture));
     assert_eq!((c.selected, c.in_view, c.tracked, c.inliers), (0, 0, 0, 0));
     assert!(c.residual_px.is_nan());
+}
+
+#[test]
+fn the_quality_is_the_inliers_over_the_features_in_view_and_a_reset_forgets_the_counts() {
+    let c = PairCounts { selected: 10, in_view: 8, tracked: 7, inliers: 6, residual_px: 0.2 };
+    assert_eq!(c.quality(), 0.75);
+    assert_eq!(PairCounts { in_view: 0, ..c }.quality(), 6.0, "no features in view: over one");
+    let (w, h) = (320usize, 240usize);
+    let a = lattice_texture(w, h, 0.0, 0.0, 1.0, 0.0);
+    let b = lattice_texture(w, h, -1.0, 0.0, 1.0, 0.0);
+    let mut ws = Box::new(FlowWorkspace::new());
+    let (va, vb) = (Gray8View::packed(&a, w, h).unwrap(), Gray8View::packed(&b, w, h).unwrap());
+    let params = FlowParams::for_image(w as u16, h as u16);
+    flow_between(&va, &vb, &camera(w, h), &params, Vec3::ZERO, &mut ws).unwrap();
+    assert!(ws.last_counts().residual_px.is_finite() && ws.last_counts().inliers > 0);
+    ws.reset();
+    let c = ws.last_counts();
+    assert!(c.residual_px.is_nan() && (c.selected, c.in_view, c.tracked, c.inliers) == (0, 0, 0, 0), "{c:?}");
 }
