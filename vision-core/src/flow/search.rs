@@ -167,7 +167,7 @@ mod tests {
             assert_eq!(found, truth, "from {centre:?}");
         }
         // A small radius about a centre near the truth.
-        assert_eq!(whole_frame_shift(&pa, &pb, Vec2::new(100.0, -36.0), 20.0), Some(truth));
+        assert_eq!(whole_frame_shift(&pa, &pb, Vec2::new(100.0, -48.0), 8.0), Some(truth));
         // A radius that does not reach the truth from the centre: not the truth.
         let found = whole_frame_shift(&pa, &pb, Vec2::ZERO, 60.0);
         assert!(found != Some(truth), "{found:?}");
