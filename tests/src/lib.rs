@@ -163,3 +163,24 @@ pub fn fly_logged(
     }
     out.join(sim_host::flightlog::LOG_FILE)
 }
+
+/// The Python (`WLQ_PYTHON`, default `python3`) that can run `import {modules}`, or `None` with the reason
+/// printed as a skip; with `{require_var}=1` (as CI sets it) a missing peer is a failure instead. `install`
+/// says how to get the modules, `what` which part of the test is skipped.
+pub fn python_with(modules: &str, install: &str, require_var: &str, what: &str) -> Option<String> {
+    let py = std::env::var("WLQ_PYTHON").unwrap_or_else(|_| "python3".into());
+    let ok = std::process::Command::new(&py)
+        .args(["-c", &format!("import {modules}")])
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if ok {
+        return Some(py);
+    }
+    let why = format!("{py} has no {modules} ({install}; set WLQ_PYTHON)");
+    if std::env::var(require_var).is_ok_and(|v| v == "1") {
+        panic!("{require_var}=1 but {why}");
+    }
+    eprintln!("SKIPPED ({what}): {why}");
+    None
+}

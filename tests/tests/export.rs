@@ -16,22 +16,12 @@ use std::process::{Command, Stdio};
 /// The Python with `mcap` and `mcap-protobuf-support`, or why there is none (a failure when
 /// `REQUIRE_PYTHON_MCAP=1`, as CI sets it).
 fn python_mcap() -> Option<String> {
-    let py = std::env::var("WLQ_PYTHON").unwrap_or_else(|_| "python3".into());
-    let ok = Command::new(&py)
-        .args(["-c", "import mcap, mcap_protobuf"])
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if ok {
-        return Some(py);
-    }
-    let why =
-        format!("{py} has no mcap / mcap_protobuf (pip install mcap mcap-protobuf-support; set WLQ_PYTHON)");
-    if std::env::var("REQUIRE_PYTHON_MCAP").is_ok_and(|v| v == "1") {
-        panic!("REQUIRE_PYTHON_MCAP=1 but {why}");
-    }
-    eprintln!("SKIPPED (the Python readers' half): {why}");
-    None
+    system_tests::python_with(
+        "mcap, mcap_protobuf",
+        "pip install mcap mcap-protobuf-support",
+        "REQUIRE_PYTHON_MCAP",
+        "the Python readers' half",
+    )
 }
 
 /// What tests/python/read_mcap.py decoded from `mcap`.

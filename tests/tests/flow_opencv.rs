@@ -12,27 +12,18 @@ use sim_host::imageio::{GrayImage, write_png_gray};
 use sim_host::render::{DownPose, DownRenderer};
 use sim_host::rng::SimRng;
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Command;
 use vision_core::flow::{self, FlowParams, FlowWorkspace};
 use vision_core::image::Gray8View;
 
 /// The Python with OpenCV, or why there is none (a failure when `REQUIRE_OPENCV=1`, as CI sets it).
 fn python_opencv() -> Option<String> {
-    let py = std::env::var("WLQ_PYTHON").unwrap_or_else(|_| "python3".into());
-    let ok = Command::new(&py)
-        .args(["-c", "import cv2, numpy"])
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if ok {
-        return Some(py);
-    }
-    let why = format!("{py} has no cv2 (pip install opencv-python-headless; set WLQ_PYTHON)");
-    if std::env::var("REQUIRE_OPENCV").is_ok_and(|v| v == "1") {
-        panic!("REQUIRE_OPENCV=1 but {why}");
-    }
-    eprintln!("SKIPPED (OpenCV's side of the comparison): {why}");
-    None
+    system_tests::python_with(
+        "cv2, numpy",
+        "pip install opencv-python-headless",
+        "REQUIRE_OPENCV",
+        "OpenCV's side of the comparison",
+    )
 }
 
 /// The paper scenario's downward camera at `w x h` (the focal length scaled with the width), on a floor kind.
@@ -261,16 +252,22 @@ fn report(w: u16, h: u16, c: &mut Comparison) -> Medians {
     Medians { track: o, cv_track: co, flow: fo, cv_flow: fc }
 }
 
+/// `n` pairs per floor at `w x h` with [`FlowParams::for_image`], shifts up to 6 px per 320 of width and the
+/// given exposure step: none refused by ours, and ours at least as accurate as OpenCV per track and per pair.
+fn assert_at_least_as_accurate_as_opencv(py: &str, w: u16, h: u16, n: usize, exposure_step: f64) {
+    let params = FlowParams::for_image(w, h);
+    let mut c = compare(py, w, h, n, 6.0 * w as f64 / 320.0, exposure_step, &params);
+    let r = report(w, h, &mut c);
+    assert_eq!(c.ours_pairs_failed, 0, "{w}x{h}: ours refused pairs OpenCV tracked");
+    assert!(r.track <= r.cv_track, "{w}x{h}: per track ours {} px, OpenCV {} px", r.track, r.cv_track);
+    assert!(r.flow <= r.cv_flow, "{w}x{h}: per pair ours {} px, OpenCV {} px", r.flow, r.cv_flow);
+}
+
 #[test]
 fn tracking_at_320x240_and_640x480_is_at_least_as_accurate_as_opencv() {
     let Some(py) = python_opencv() else { return };
     for (w, h) in [(320u16, 240u16), (640, 480)] {
-        let params = FlowParams::for_image(w, h);
-        let mut c = compare(&py, w, h, 40, 6.0 * w as f64 / 320.0, 1.0, &params);
-        let r = report(w, h, &mut c);
-        assert_eq!(c.ours_pairs_failed, 0, "{w}x{h}: ours refused pairs OpenCV tracked");
-        assert!(r.track <= r.cv_track, "{w}x{h}: per track ours {} px, OpenCV {} px", r.track, r.cv_track);
-        assert!(r.flow <= r.cv_flow, "{w}x{h}: per pair ours {} px, OpenCV {} px", r.flow, r.cv_flow);
+        assert_at_least_as_accurate_as_opencv(&py, w, h, 40, 1.0);
     }
 }
 
@@ -279,12 +276,7 @@ fn tracking_at_320x240_and_640x480_is_at_least_as_accurate_as_opencv() {
 fn an_exposure_step_of_30_percent_between_frames_is_not_read_as_motion() {
     let Some(py) = python_opencv() else { return };
     for (w, h) in [(320u16, 240u16), (640, 480)] {
-        let params = FlowParams::for_image(w, h);
-        let mut c = compare(&py, w, h, 20, 6.0 * w as f64 / 320.0, 1.3, &params);
-        let r = report(w, h, &mut c);
-        assert_eq!(c.ours_pairs_failed, 0, "{w}x{h}: ours refused pairs OpenCV tracked");
-        assert!(r.track <= r.cv_track, "{w}x{h}: per track ours {} px, OpenCV {} px", r.track, r.cv_track);
-        assert!(r.flow <= r.cv_flow, "{w}x{h}: per pair ours {} px, OpenCV {} px", r.flow, r.cv_flow);
+        assert_at_least_as_accurate_as_opencv(&py, w, h, 20, 1.3);
     }
 }
 

@@ -1,9 +1,10 @@
 //! Tests of the flow on frames larger than 160x120 with [`FlowParams::for_image`]: the whole-frame search
 //! (reach), the brightness gain and offset (exposure steps), the counts of a pair.
+use super::tests::tiling;
 use super::*;
 
 /// A camera for a `w x h` frame, the focal length scaled from 160x120's 139 px.
-fn camera(w: usize, h: usize) -> CameraModel {
+pub(super) fn camera(w: usize, h: usize) -> CameraModel {
     CameraModel {
         width: w as u16,
         height: h as u16,
@@ -17,7 +18,7 @@ fn camera(w: usize, h: usize) -> CameraModel {
 
 /// An aperiodic texture: random values on a lattice of `cell` px, interpolated bilinearly (a continuous
 /// function, so a sub-pixel shift is exact), sampled at `(x + dx, y + dy)`, times `gain` plus `offset`.
-fn lattice_texture(w: usize, h: usize, dx: f32, dy: f32, gain: f32, offset: f32) -> Vec<u8> {
+pub(super) fn lattice_texture(w: usize, h: usize, dx: f32, dy: f32, gain: f32, offset: f32) -> Vec<u8> {
     lattice_texture_vignetted(w, h, dx, dy, gain, offset, 0.0)
 }
 
@@ -187,4 +188,35 @@ fn the_quality_is_the_inliers_over_the_features_in_view_and_a_reset_forgets_the_
     ws.reset();
     let c = ws.last_counts();
     assert!(c.residual_px.is_nan() && (c.selected, c.in_view, c.tracked, c.inliers) == (0, 0, 0, 0), "{c:?}");
+}
+
+#[test]
+fn repeating_floors_give_no_confident_wrong_flow_at_320x240_and_640x480() {
+    // The parameters for larger frames search the whole frame's displacement first, which on a tiling
+    // finds the alias as readily as the truth: the pair must still be refused (or its quality under the
+    // flight code's gate), never a confident wrong flow. Tilings of 16 and 40 px, shifted by 0.5-0.8 of one.
+    for (w, h) in [(320usize, 240usize), (640, 480)] {
+        for period in [16.0f32, 40.0] {
+            for frac in [0.5f32, 0.65, 0.8] {
+                let shift = frac * period;
+                let (a, b) = (tiling(w, h, period, 0.0), tiling(w, h, period, -shift));
+                let camera = camera(w, h);
+                let params = FlowParams::for_image(w as u16, h as u16);
+                let mut ws = Box::new(FlowWorkspace::new());
+                let (va, vb) = (Gray8View::packed(&a, w, h).unwrap(), Gray8View::packed(&b, w, h).unwrap());
+                match flow_between(&va, &vb, &camera, &params, Vec3::ZERO, &mut ws) {
+                    Err(_) => {}
+                    Ok(st) => {
+                        let wrong = (st.median_flow_px.x - shift).abs() > 0.5;
+                        assert!(
+                            !wrong || st.quality < 0.5,
+                            "{w}x{h}, period {period} px shifted {shift} px: {:?} at quality {}",
+                            st.median_flow_px,
+                            st.quality
+                        );
+                    }
+                }
+            }
+        }
+    }
 }

@@ -96,31 +96,9 @@ mod tests {
     use std::boxed::Box;
     use std::vec::Vec;
 
-    /// Random values on a lattice of 3 px, interpolated bilinearly, sampled at `(x + dx, y + dy)`.
+    /// The flow tests' aperiodic lattice texture, sampled at `(x + dx, y + dy)`.
     fn texture(w: usize, h: usize, dx: i64, dy: i64) -> Vec<u8> {
-        let value = |i: i64, j: i64| {
-            let mut z = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-                ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
-            z ^= z >> 29;
-            z = z.wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z ^= z >> 32;
-            (z % 1000) as f32 / 1000.0
-        };
-        let mut img = std::vec![0u8; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let (u, v) = ((x as i64 + dx) as f32 / 3.0, (y as i64 + dy) as f32 / 3.0);
-                let (i, j) = (libm::floorf(u), libm::floorf(v));
-                let (fu, fv) = (u - i, v - j);
-                let (i, j) = (i as i64, j as i64);
-                let s = value(i, j) * (1.0 - fu) * (1.0 - fv)
-                    + value(i + 1, j) * fu * (1.0 - fv)
-                    + value(i, j + 1) * (1.0 - fu) * fv
-                    + value(i + 1, j + 1) * fu * fv;
-                img[y * w + x] = (60.0 + 120.0 * s) as u8;
-            }
-        }
-        img
+        super::super::large_frame_tests::lattice_texture(w, h, dx as f32, dy as f32, 1.0, 0.0)
     }
 
     fn pyramid(img: &[u8], w: usize, h: usize, levels: usize) -> Box<Pyramid> {
